@@ -1,0 +1,40 @@
+# Two commands on a fresh machine: `make demo` and `make test`. Both create ./.venv.
+PYTHON ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+DEMO_OUT := out/demo
+
+.PHONY: venv test lint typecheck unit demo bags clean
+
+venv: $(STAMP)
+
+$(STAMP): setup.py setup.cfg requirements/constraints.txt
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --disable-pip-version-check 'pip==23.2.1' 'setuptools==65.5.0' 2>&1 | grep -v 'is ignored' || true
+	$(BIN)/python -m pip install -q --disable-pip-version-check -c requirements/constraints.txt -e '.[ros,dev]' 2>&1 | grep -v 'is ignored' || true
+	$(BIN)/python -c 'import depth_nodes, rclpy, cv2, numba, rosbags'
+	touch $(STAMP)
+
+lint: venv
+	$(BIN)/ruff check .
+
+typecheck: venv
+	$(BIN)/mypy
+
+unit: venv
+	$(BIN)/python -m pytest
+
+test: lint typecheck unit
+
+demo: venv
+	rm -rf $(DEMO_OUT)
+	$(BIN)/depth-nodes process bags/stereo_vga $(DEMO_OUT)/stereo_vga_out
+	$(BIN)/depth-nodes eval $(DEMO_OUT)/stereo_vga_out --previews $(DEMO_OUT)/previews
+
+# Regenerate the committed synthetic bags (deterministic from their seeds).
+bags: venv
+	$(BIN)/depth-nodes generate --preset all --out bags --force
+
+clean:
+	rm -rf $(VENV) out build install log *.egg-info

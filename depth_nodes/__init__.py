@@ -1,0 +1,3 @@
+"""depth_nodes: depth-estimation nodes for ROS 2 and the array functions behind them."""
+
+__version__ = '0.1.0'

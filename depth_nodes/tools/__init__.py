@@ -1,0 +1,1 @@
+"""The `depth-nodes` command: generate, process, play, record, eval."""
