@@ -1,0 +1,105 @@
+"""OpenCV's StereoSGBM, run the way stereo_image_proc runs it, as the reference to beat.
+
+The figures depth_nodes reports are always printed beside these, measured on the same
+rectified images in the same run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class SgbmSettings:
+    """StereoSGBM settings, named like stereo_image_proc's disparity node parameters."""
+
+    label: str
+    mode: int = cv2.STEREO_SGBM_MODE_SGBM
+    correlation_window_size: int = 15
+    P1: int = 200
+    P2: int = 400
+    uniqueness_ratio: int = 15
+    speckle_size: int = 100
+    speckle_range: int = 4
+    disp12_max_diff: int = 0
+    prefilter_cap: int = 31
+
+
+#: stereo_image_proc's disparity node defaults (full_dp false -> MODE_SGBM).
+STEREO_IMAGE_PROC_DEFAULTS = SgbmSettings('opencv SGBM, stereo_image_proc defaults')
+
+#: The usual tuning for StereoSGBM (P1 = 8 cn w^2, P2 = 32 cn w^2, small window), full DP.
+TUNED_HH = SgbmSettings(
+    'opencv SGBM MODE_HH, tuned P1/P2',
+    mode=cv2.STEREO_SGBM_MODE_HH,
+    correlation_window_size=5,
+    P1=8 * 25,
+    P2=32 * 25,
+    uniqueness_ratio=10,
+    speckle_size=100,
+    speckle_range=2,
+    disp12_max_diff=1,
+    prefilter_cap=63,
+)
+
+BASELINES = (STEREO_IMAGE_PROC_DEFAULTS, TUNED_HH)
+
+
+def opencv_range(min_disparity: int, max_disparity: float) -> int:
+    """The smallest multiple of 16 that covers [min_disparity, max_disparity]."""
+    span = max(float(max_disparity) - min_disparity + 1.0, 16.0)
+    return int(np.ceil(span / 16.0) * 16)
+
+
+def opencv_sgbm(
+    left: NDArray[np.uint8],
+    right: NDArray[np.uint8],
+    settings: SgbmSettings = STEREO_IMAGE_PROC_DEFAULTS,
+    *,
+    min_disparity: int = 0,
+    disparity_range: int = 64,
+) -> NDArray[np.float32]:
+    """Run StereoSGBM on a rectified mono8 pair.
+
+    Args:
+        left: (H, W) uint8 rectified left image.
+        right: (H, W) uint8 rectified right image.
+        settings: Matcher settings.
+        min_disparity: Smallest disparity searched.
+        disparity_range: Number of disparities; OpenCV needs a positive multiple of 16.
+
+    Returns:
+        (H, W) float32 disparity in pixels, NaN where OpenCV marks the pixel invalid.
+
+    Raises:
+        ValueError: Shapes or dtypes differ, or the range is not a multiple of 16.
+    """
+    if left.shape != right.shape or left.ndim != 2:
+        raise ValueError(f'left {left.shape} and right {right.shape} must be equal 2-D shapes')
+    if left.dtype != np.uint8 or right.dtype != np.uint8:
+        raise ValueError(f'images must be uint8, got {left.dtype} and {right.dtype}')
+    if disparity_range <= 0 or disparity_range % 16:
+        raise ValueError(f'disparity_range must be a positive multiple of 16, '
+                         f'got {disparity_range}')
+    matcher = cv2.StereoSGBM.create(
+        minDisparity=int(min_disparity),
+        numDisparities=int(disparity_range),
+        blockSize=settings.correlation_window_size,
+        P1=settings.P1,
+        P2=settings.P2,
+        disp12MaxDiff=settings.disp12_max_diff,
+        preFilterCap=settings.prefilter_cap,
+        uniquenessRatio=settings.uniqueness_ratio,
+        speckleWindowSize=settings.speckle_size,
+        speckleRange=settings.speckle_range,
+        mode=settings.mode,
+    )
+    raw = matcher.compute(left, right)
+    disparity = raw.astype(np.float32) / 16.0
+    disparity[raw < min_disparity * 16] = np.nan
+    return disparity
+

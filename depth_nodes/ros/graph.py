@@ -1,0 +1,202 @@
+"""Graph descriptions: which nodes to run, with what names, namespaces and parameters.
+
+One YAML format serves the offline bag harness (``depth-nodes process``) and, later, the
+composed live pipeline::
+
+    graph:
+      name: stereo
+      nodes:
+        - name: rectify_left          # node name
+          plugin: rectify             # a name in NODE_PLUGINS, or 'package.module:Class'
+          namespace: /stereo/left
+          parameters: {interpolation: linear}
+          remappings: {image: image_raw}
+
+Parameter files use the ROS 2 ``--params-file`` layout (``node: {ros__parameters: {...}}``,
+with ``/**`` matching every node), so the same file works with ``ros2 run``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from rclpy.parameter import Parameter
+
+from depth_nodes.errors import ConfigError
+
+#: Short plugin names of the nodes this package provides (filled in as nodes land).
+NODE_PLUGINS: dict[str, str] = {}
+
+
+@dataclass
+class NodeSpec:
+    """One node of a graph description."""
+
+    name: str
+    plugin: str
+    namespace: str = '/'
+    parameters: dict[str, Any] = field(default_factory=dict)
+    remappings: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def fully_qualified_name(self) -> str:
+        """``/namespace/name``."""
+        return f'{self.namespace.rstrip("/")}/{self.name}'
+
+
+@dataclass
+class GraphConfig:
+    """A named list of nodes."""
+
+    name: str
+    nodes: list[NodeSpec]
+    source: str = ''
+
+
+def _load_yaml(path: Path, what: str) -> Any:
+    if not path.is_file():
+        raise ConfigError(f'{what} not found: {path}')
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'{what} {path} is not valid YAML: {exc}') from None
+
+
+def load_graph_config(path: str | Path) -> GraphConfig:
+    """Read a graph description.
+
+    Raises:
+        ConfigError: The file is missing, not YAML, or a node entry is malformed.
+    """
+    path = Path(path)
+    doc = _load_yaml(path, 'graph config')
+    graph = doc.get('graph') if isinstance(doc, dict) else None
+    if not isinstance(graph, dict):
+        raise ConfigError(f'graph config {path} needs a top-level "graph:" mapping')
+    entries = graph.get('nodes') or []
+    if not isinstance(entries, list):
+        raise ConfigError(f'graph config {path}: "nodes" must be a list')
+    nodes = [_node_spec(entry, path, i) for i, entry in enumerate(entries)]
+    names = [n.fully_qualified_name for n in nodes]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ConfigError(f'graph config {path}: node names used twice: {", ".join(dupes)}')
+    return GraphConfig(str(graph.get('name', path.stem)), nodes, str(path))
+
+
+def _node_spec(entry: Any, path: Path, index: int) -> NodeSpec:
+    where = f'graph config {path}, node #{index + 1}'
+    if not isinstance(entry, dict):
+        raise ConfigError(f'{where}: expected a mapping, got {entry!r}')
+    unknown = set(entry) - {'name', 'plugin', 'namespace', 'parameters', 'remappings'}
+    if unknown:
+        raise ConfigError(f'{where}: unknown keys {sorted(unknown)}')
+    for key in ('name', 'plugin'):
+        if not isinstance(entry.get(key), str) or not entry[key]:
+            raise ConfigError(f'{where}: "{key}" must be a non-empty string')
+    namespace = entry.get('namespace', '/')
+    if not isinstance(namespace, str) or not namespace.startswith('/'):
+        raise ConfigError(f'{where}: "namespace" must be absolute, got {namespace!r}')
+    params = entry.get('parameters') or {}
+    remaps = entry.get('remappings') or {}
+    if not isinstance(params, dict) or not isinstance(remaps, dict):
+        raise ConfigError(f'{where}: "parameters" and "remappings" must be mappings')
+    return NodeSpec(
+        entry['name'], entry['plugin'], namespace, dict(params),
+        {str(k): str(v) for k, v in remaps.items()},
+    )
+
+
+def load_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Read a ROS 2 parameter file into ``{node key: {name: value}}``.
+
+    Node keys are as written (``rectify_left``, ``/stereo/rectify_left`` or ``/**``);
+    nested namespaces (``stereo: {rectify_left: {ros__parameters: ...}}``) are flattened.
+
+    Raises:
+        ConfigError: The file is missing, not YAML, or has no ``ros__parameters``.
+    """
+    path = Path(path)
+    doc = _load_yaml(path, 'parameter file')
+    if not isinstance(doc, dict):
+        raise ConfigError(f'parameter file {path} must be a mapping of node names')
+    out: dict[str, dict[str, Any]] = {}
+
+    def walk(prefix: str, node: dict[str, Any]) -> None:
+        for key, value in node.items():
+            if key == 'ros__parameters':
+                if not isinstance(value, dict):
+                    raise ConfigError(f'parameter file {path}: ros__parameters of {prefix} '
+                                      'must be a mapping')
+                out[prefix or '/**'] = dict(value)
+            elif isinstance(value, dict):
+                walk(f'{prefix}/{key}' if prefix else str(key), value)
+            else:
+                raise ConfigError(f'parameter file {path}: unexpected entry {key!r} under '
+                                  f'{prefix or "the top level"} (missing ros__parameters?)')
+
+    walk('', doc)
+    if not out:
+        raise ConfigError(f'parameter file {path} sets no ros__parameters')
+    return out
+
+
+def parameters_for(spec: NodeSpec, params: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The parameters of ``spec``: its own, then ``/**``, then by name, then by full name."""
+    merged = dict(spec.parameters)
+    fq = spec.fully_qualified_name
+    for key in ('/**', spec.name, fq.lstrip('/'), fq):
+        merged.update(params.get(key, {}))
+    return merged
+
+
+def resolve_plugin(plugin: str) -> type:
+    """Return the node class for a plugin name or a ``module:Class`` path.
+
+    Raises:
+        ConfigError: Unknown name, or the module or class cannot be imported.
+    """
+    target = NODE_PLUGINS.get(plugin, plugin)
+    if ':' not in target:
+        known = ', '.join(sorted(NODE_PLUGINS)) or 'none yet'
+        raise ConfigError(f'unknown node plugin {plugin!r} (known: {known}; '
+                          'or give package.module:Class)')
+    module_name, _, class_name = target.partition(':')
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(f'cannot import node plugin {plugin!r}: {exc}') from None
+    cls = getattr(module, class_name, None)
+    if not isinstance(cls, type):
+        raise ConfigError(f'node plugin {plugin!r}: {module_name} has no class {class_name}')
+    return cls
+
+
+def instantiate(spec: NodeSpec, params: dict[str, Any], **node_kwargs: Any) -> Any:
+    """Create the node described by ``spec`` with ``params`` (and extra Node kwargs).
+
+    Raises:
+        ConfigError: The plugin cannot be resolved or a parameter value has no ROS type.
+    """
+    cls = resolve_plugin(spec.plugin)
+    overrides = []
+    for name, value in params.items():
+        try:
+            overrides.append(Parameter(name, value=value))
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f'node {spec.fully_qualified_name}: parameter {name}={value!r} '
+                              f'has no ROS parameter type: {exc}') from None
+    cli_args = ['--ros-args']
+    for src, dst in spec.remappings.items():
+        cli_args += ['-r', f'{src}:={dst}']
+    return cls(
+        node_name=spec.name,
+        namespace=spec.namespace,
+        parameter_overrides=overrides,
+        cli_args=cli_args,
+        **node_kwargs,
+    )

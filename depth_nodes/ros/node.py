@@ -1,0 +1,138 @@
+"""The base class of every depth_nodes node.
+
+It adds three things to ``rclpy.node.Node``, all of which the offline bag harness relies on:
+
+* inputs and outputs are declared through :meth:`DepthNode.add_input` and
+  :meth:`DepthNode.add_output`, so a harness can see which topics a node consumes and can
+  route its published messages directly (no DDS) while the live path is unchanged;
+* QoS follows REP 2003 (sensor-data subscriptions, reliable publishers) and both can be
+  overridden with ``qos_overrides`` parameters;
+* a frame that produces no output is never lost silently: :meth:`DepthNode.drop` counts it
+  by reason and logs a throttled warning naming the reason.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos_overriding_options import QoSOverridingOptions
+
+#: Publishers keep this many messages by default (reliable, volatile).
+PUBLISHER_DEPTH = 10
+#: Seconds between two warnings for the same drop reason.
+DROP_LOG_PERIOD_S = 5.0
+
+Sink = Callable[[str, Any], None]
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """One subscription: fully resolved topic, message class and callback."""
+
+    topic: str
+    msg_type: type
+    callback: Callable[[Any], None]
+
+
+class Output:
+    """A publisher that the offline harness can redirect.
+
+    Live, :meth:`publish` publishes over DDS; with a sink installed on its node (the bag
+    harness does that) the message goes to the sink instead.
+    """
+
+    def __init__(self, node: DepthNode, publisher: Any) -> None:
+        self._node = node
+        self._publisher = publisher
+        self.topic: str = publisher.topic_name
+        self.count = 0
+
+    def publish(self, msg: Any) -> None:
+        """Publish ``msg`` (or hand it to the harness sink)."""
+        self.count += 1
+        sink = self._node.sink
+        if sink is None:
+            self._publisher.publish(msg)
+        else:
+            sink(self.topic, msg)
+
+    def has_listeners(self) -> bool:
+        """Whether anything would receive a message: a subscriber, or the harness."""
+        return self._node.sink is not None or self._publisher.get_subscription_count() > 0
+
+
+class DepthNode(Node):
+    """Base class: declared inputs/outputs, REP 2003 QoS, counted drops.
+
+    Args:
+        node_name: Default node name (remappable with ``__node``).
+        **kwargs: Passed to ``rclpy.node.Node`` (namespace, context, parameter_overrides,
+            cli_args, ...).
+    """
+
+    def __init__(self, node_name: str, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.inputs: list[InputSpec] = []
+        self.outputs: dict[str, Output] = {}
+        self.drops: Counter[str] = Counter()
+        self.sink: Sink | None = None
+        self._last_drop_log: dict[str, float] = {}
+
+    def add_input(
+        self,
+        msg_type: type,
+        topic: str,
+        callback: Callable[[Any], None],
+        *,
+        qos: QoSProfile | int | None = None,
+    ) -> str:
+        """Subscribe ``callback`` to ``topic`` with sensor-data QoS unless told otherwise.
+
+        Returns:
+            The fully resolved topic name (after namespace and remapping).
+        """
+        sub = self.create_subscription(
+            msg_type,
+            topic,
+            callback,
+            qos if qos is not None else qos_profile_sensor_data,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
+        self.inputs.append(InputSpec(sub.topic_name, msg_type, callback))
+        return str(sub.topic_name)
+
+    def add_output(
+        self, msg_type: type, topic: str, *, qos: QoSProfile | int | None = None
+    ) -> Output:
+        """Create a reliable publisher on ``topic`` (depth :data:`PUBLISHER_DEPTH`)."""
+        pub = self.create_publisher(
+            msg_type,
+            topic,
+            qos if qos is not None else PUBLISHER_DEPTH,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
+        out = Output(self, pub)
+        self.outputs[out.topic] = out
+        return out
+
+    def drop(self, reason: str, detail: str) -> None:
+        """Count a frame that produced no output, and log why (throttled per reason).
+
+        Args:
+            reason: A short stable key, e.g. ``size_mismatch``; the counter's key.
+            detail: The human-readable explanation, e.g. the sizes that disagreed.
+        """
+        self.drops[reason] += 1
+        now = time.monotonic()
+        last = self._last_drop_log.get(reason)
+        if last is None or now - last >= DROP_LOG_PERIOD_S:
+            self._last_drop_log[reason] = now
+            self.get_logger().warning(
+                f'dropped frame ({reason}, {self.drops[reason]} so far): {detail}'
+            )

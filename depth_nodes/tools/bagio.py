@@ -1,0 +1,230 @@
+"""rosbag2 reading and writing through the `rosbags` library, with rclpy message objects.
+
+``rosbag2_py`` is not on PyPI, so bags are read and written with rosbags while messages
+are (de)serialised by rclpy itself. Messages therefore travel as the exact CDR bytes a live
+graph would carry, and the same node classes can process them offline.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections import Counter
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.rosbag2 import (
+    CompressionFormat,
+    CompressionMode,
+    Reader,
+    StoragePlugin,
+    Writer,
+)
+from rosbags.typesys import Stores, get_typestore
+
+from depth_nodes.errors import BagError
+
+_TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+
+
+def message_class(msgtype: str) -> type:
+    """Return the rclpy message class for a type name such as ``sensor_msgs/msg/Image``.
+
+    Raises:
+        BagError: The name is malformed or the message package is not installed.
+    """
+    parts = msgtype.split('/')
+    if len(parts) != 3 or parts[1] != 'msg':
+        raise BagError(f'not a ROS 2 message type name: {msgtype!r}')
+    try:
+        return getattr(importlib.import_module(f'{parts[0]}.msg'), parts[2])  # type: ignore[no-any-return]
+    except (ImportError, AttributeError):
+        raise BagError(f'message type {msgtype} is not installed') from None
+
+
+def message_type_name(msg_or_class: Any) -> str:
+    """Return ``pkg/msg/Name`` for an rclpy message or message class."""
+    cls = msg_or_class if isinstance(msg_or_class, type) else type(msg_or_class)
+    return f'{cls.__module__.split(".")[0]}/msg/{cls.__name__}'
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """One message read from a bag, still serialised."""
+
+    topic: str
+    msgtype: str
+    timestamp: int
+    data: bytes
+
+    def deserialize(self) -> Any:
+        """Deserialise into an rclpy message object."""
+        try:
+            return deserialize_message(self.data, message_class(self.msgtype))
+        except BagError:
+            raise
+        except Exception as exc:  # rclpy raises plain Exception subclasses on bad CDR
+            raise BagError(
+                f'cannot deserialise a {self.msgtype} message on {self.topic} '
+                f'at t={self.timestamp}: {exc}'
+            ) from None
+
+
+class BagReader:
+    """Read a rosbag2 bag (sqlite3 or MCAP, compressed or not).
+
+    Args:
+        path: The bag folder (the one holding metadata.yaml).
+
+    Raises:
+        BagError: The bag is missing, unreadable or corrupt.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise BagError(f'bag not found: {self.path}')
+        if not (self.path / 'metadata.yaml').is_file():
+            raise BagError(f'not a rosbag2 bag (no metadata.yaml): {self.path}')
+        try:
+            self._reader = Reader(self.path)
+            self._reader.open()
+        except Exception as exc:
+            raise BagError(f'cannot open bag {self.path}: {exc}') from None
+        self.topics: dict[str, str] = {}
+        self.counts: Counter[str] = Counter()
+        for conn in self._reader.connections:
+            self.topics[conn.topic] = conn.msgtype
+            self.counts[conn.topic] += conn.msgcount
+        self.custom_data: dict[str, str] = dict(self._reader.storage.metadata.custom or {})
+
+    @property
+    def message_count(self) -> int:
+        """Number of messages in the bag."""
+        return int(self._reader.message_count)
+
+    def require(self, topic: str, msgtype: str | None = None) -> None:
+        """Check that ``topic`` exists (with type ``msgtype`` when given).
+
+        Raises:
+            BagError: The topic is missing or of another type.
+        """
+        if topic not in self.topics:
+            known = ', '.join(sorted(self.topics)) or 'none'
+            raise BagError(f'topic {topic} is not in {self.path} (topics: {known})')
+        if msgtype is not None and self.topics[topic] != msgtype:
+            raise BagError(
+                f'topic {topic} in {self.path} has type {self.topics[topic]}, expected {msgtype}'
+            )
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
+        """Yield messages in timestamp order, optionally only those of ``topics``.
+
+        Raises:
+            BagError: A requested topic is missing, or the storage is corrupt.
+        """
+        wanted = None if topics is None else set(topics)
+        if wanted is not None:
+            for topic in sorted(wanted):
+                self.require(topic)
+        conns = [c for c in self._reader.connections if wanted is None or c.topic in wanted]
+        try:
+            for conn, timestamp, data in self._reader.messages(connections=conns):
+                yield BagMessage(conn.topic, conn.msgtype, timestamp, bytes(data))
+        except BagError:
+            raise
+        except Exception as exc:
+            raise BagError(f'corrupt bag {self.path}: {exc}') from None
+
+    def close(self) -> None:
+        """Close the bag."""
+        self._reader.close()
+
+    def __enter__(self) -> BagReader:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class BagWriter:
+    """Write a rosbag2 bag in MCAP storage, zstd-compressed per chunk.
+
+    Topics are registered on first write with the type's message definition from the
+    Jazzy typestore, so ``ros2 bag info`` and other tools can read the result.
+
+    Args:
+        path: The bag folder to create; it must not exist unless ``overwrite``.
+        compress: Compress the MCAP chunks with zstd.
+        overwrite: Remove an existing bag folder at ``path`` first.
+    """
+
+    def __init__(self, path: str | Path, *, compress: bool = True, overwrite: bool = False) -> None:
+        self.path = Path(path)
+        if self.path.exists():
+            if not overwrite:
+                raise BagError(f'output bag exists already: {self.path} (use --force)')
+            if not (self.path / 'metadata.yaml').is_file() and any(self.path.iterdir()):
+                raise BagError(f'refusing to overwrite {self.path}: not a bag folder')
+            _remove_tree(self.path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._writer = Writer(self.path, version=Writer.VERSION_LATEST,
+                              storage_plugin=StoragePlugin.MCAP)
+        if compress:
+            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        self._connections: dict[str, Any] = {}
+        self.counts: Counter[str] = Counter()
+        self._writer.open()
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Store a key/value string in the bag's metadata (e.g. the generator's seed)."""
+        self._writer.set_custom_data(key, value)
+
+    def write(self, topic: str, msg: Any, timestamp: int, msgtype: str | None = None) -> None:
+        """Write one message (an rclpy message object, or CDR bytes with ``msgtype``)."""
+        if isinstance(msg, bytes | bytearray | memoryview):
+            if msgtype is None:
+                raise BagError(f'writing raw bytes to {topic} needs its message type')
+            data = bytes(msg)
+        else:
+            msgtype = msgtype or message_type_name(msg)
+            data = serialize_message(msg)
+        conn = self._connections.get(topic)
+        if conn is None:
+            if msgtype not in _TYPESTORE.types:
+                raise BagError(f'message type {msgtype} (topic {topic}) is unknown to rosbags')
+            conn = self._writer.add_connection(topic, msgtype, typestore=_TYPESTORE)
+            self._connections[topic] = conn
+        elif conn.msgtype != msgtype:
+            raise BagError(f'topic {topic} has type {conn.msgtype}; cannot write a {msgtype}')
+        self._writer.write(conn, timestamp, data)
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        """Finish the bag (writes metadata.yaml)."""
+        self._writer.close()
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _remove_tree(path: Path) -> None:
+    import shutil
+
+    shutil.rmtree(path)
