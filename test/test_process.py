@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
+from conftest import run_cli
 from depth_nodes.errors import BagError
 from depth_nodes.ros.graph import GraphConfig, NodeSpec, load_graph_config
 from depth_nodes.ros.image import array_to_image

@@ -1,0 +1,152 @@
+"""The `depth-nodes` command.
+
+Subcommands: ``generate`` (synthetic bags), ``process`` (run nodes over a bag offline),
+``play`` / ``record`` (bags into and out of a live graph), ``eval`` (accuracy against the
+ground truth in a bag). A user error prints one line and exits non-zero; never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from depth_nodes.errors import DepthNodesError
+
+EXIT_ERROR = 1
+
+
+def _cmd_generate(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.generate import PRESETS, preset, write_stereo_bag
+
+    names = list(PRESETS) if args.preset == 'all' else [args.preset]
+    out = Path(args.out)
+    for name in names:
+        path = out / name if args.preset == 'all' else out
+        config = preset(name)
+        if args.seed is not None:
+            config = dataclasses.replace(config, seed=args.seed)
+        if args.frames is not None:
+            config = dataclasses.replace(config, n_frames=args.frames)
+        count = write_stereo_bag(
+            path, config, overwrite=args.force,
+            on_frame=lambda i, n=config.n_frames: print(f'  frame {i + 1}/{n}', file=sys.stderr),
+        )
+        size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
+        print(f'{path}: {name}, {config.width}x{config.height}, {config.n_frames} frames, '
+              f'{count} messages, {size:.1f} MB')
+    return 0
+
+
+def _cmd_process(args: argparse.Namespace) -> int:
+    # Offline processing needs no network: keep DDS discovery off unless told otherwise.
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')
+    from depth_nodes.ros.graph import load_graph_config
+    from depth_nodes.tools.process import default_config_path, process_bag, select_nodes
+
+    config = load_graph_config(args.config or default_config_path())
+    config = select_nodes(config, args.nodes)
+    report = process_bag(args.in_bag, args.out_bag, config=config, params_file=args.params,
+                         overwrite=args.force, progress=sys.stderr)
+    print(f'{args.in_bag} -> {args.out_bag} (graph {config.name})')
+    print(report.format())
+    return 0
+
+
+def _cmd_play(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.live import PlayOptions, play_bag
+
+    options = PlayOptions(rate=args.rate, loop=args.loop, clock=args.clock, topics=args.topics,
+                          wait_for_subscribers=args.wait_for_subscribers)
+    count = play_bag(args.bag, options, log=sys.stdout)
+    print(f'played {count} messages')
+    return 0
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.live import record_bag
+
+    count = record_bag(args.out_bag, args.topics, duration=args.duration,
+                       max_messages=args.max_messages, overwrite=args.force, log=sys.stdout)
+    print(f'recorded {count} messages to {args.out_bag}')
+    return 0
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.evaluate import evaluate_bag
+
+    report = evaluate_bag(args.bag, threshold=args.threshold, baselines=not args.no_baseline,
+                          previews=args.previews)
+    print(report.format())
+    if args.previews:
+        print(f'previews written to {args.previews}')
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the `depth-nodes` command."""
+    parser = argparse.ArgumentParser(prog='depth-nodes', description=__doc__.split('\n')[0])
+    sub = parser.add_subparsers(dest='command', required=True)
+
+    gen = sub.add_parser('generate', help='write synthetic stereo bags with ground truth')
+    gen.add_argument('out', help='bag folder to create (a parent folder with --preset all)')
+    gen.add_argument('--preset', default='stereo_vga',
+                     help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye or all')
+    gen.add_argument('--seed', type=int, help='override the preset seed')
+    gen.add_argument('--frames', type=int, help='override the number of frames')
+    gen.add_argument('--force', action='store_true', help='replace existing bags')
+    gen.set_defaults(func=_cmd_generate)
+
+    proc = sub.add_parser('process', help='run the node graph over a bag, offline')
+    proc.add_argument('in_bag')
+    proc.add_argument('out_bag')
+    proc.add_argument('--config', help='graph YAML (default: config/stereo_pipeline.yaml)')
+    proc.add_argument('--params', help='ROS 2 parameter file overriding node parameters')
+    proc.add_argument('--nodes', nargs='+', help='run only these nodes of the graph')
+    proc.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
+    proc.set_defaults(func=_cmd_process)
+
+    play = sub.add_parser('play', help='publish a bag into the live graph')
+    play.add_argument('bag')
+    play.add_argument('--rate', type=float, default=1.0, help='speed factor (default 1)')
+    play.add_argument('--loop', action='store_true', help='play again and again')
+    play.add_argument('--clock', action='store_true', help='publish /clock with bag time')
+    play.add_argument('--topics', nargs='+', help='only these topics')
+    play.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='SECONDS',
+                      help='wait up to SECONDS for every topic to have a subscriber')
+    play.set_defaults(func=_cmd_play)
+
+    rec = sub.add_parser('record', help='record live topics into a bag')
+    rec.add_argument('out_bag')
+    rec.add_argument('--topics', nargs='+', required=True)
+    rec.add_argument('--duration', type=float, help='stop after SECONDS')
+    rec.add_argument('--max-messages', type=int, help='stop after N messages')
+    rec.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
+    rec.set_defaults(func=_cmd_record)
+
+    ev = sub.add_parser('eval', help='accuracy of a processed bag against its ground truth')
+    ev.add_argument('bag')
+    ev.add_argument('--threshold', type=float, default=2.0, help='N of bad-N (default 2)')
+    ev.add_argument('--previews', help='write PNG previews into this folder')
+    ev.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
+    ev.set_defaults(func=_cmd_eval)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of `depth-nodes`; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except DepthNodesError as exc:
+        print(f'depth-nodes {args.command}: error: {exc}', file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())
