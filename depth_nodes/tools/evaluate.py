@@ -1,0 +1,275 @@
+"""`depth-nodes eval`: accuracy of a processed bag against its ground-truth topics.
+
+Every DisparityImage topic that is not ground truth is scored against
+``<ns>/left/disparity_gt`` frame by frame (matched by header stamp), over all pixels with
+ground truth and over the non-occluded ones (``<ns>/left/occlusion_gt`` == 0). A
+``<ns>/.../confidence`` image is scored by its sparsification AUC against the disparity in
+its namespace. OpenCV's StereoSGBM runs on the same rectified pair as reference: the
+pipeline's ``<ns>/left|right/image_rect`` when the bag has them, otherwise the raw images
+rectified with their CameraInfo.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from depth_nodes.core.baseline import BASELINES, opencv_range, opencv_sgbm
+from depth_nodes.core.metrics import disparity_errors, sparsification_auc
+from depth_nodes.core.rectify import rectify_image
+from depth_nodes.errors import BagError
+from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.ros.disparity import read_disparity
+from depth_nodes.ros.image import image_to_array, to_gray
+from depth_nodes.tools.bagio import BagReader
+
+DISPARITY = 'stereo_msgs/msg/DisparityImage'
+IMAGE = 'sensor_msgs/msg/Image'
+CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
+GT_SUFFIX = '/left/disparity_gt'
+
+Array = NDArray[Any]
+
+
+@dataclass
+class MethodScores:
+    """Accuracy of one method over every evaluated frame."""
+
+    method: str
+    frames: int
+    missing_frames: int
+    bad_dense: float
+    bad_sparse: float
+    density: float
+    avgerr: float
+    bad_dense_nonocc: float
+    bad_sparse_nonocc: float
+    auc_ratio: float | None = None
+
+
+@dataclass
+class EvalReport:
+    """The scores of every method, and the bag facts they were computed on."""
+
+    bag: str
+    gt_topic: str
+    frames: int
+    size: tuple[int, int]
+    gt_range: tuple[float, float]
+    threshold: float
+    rows: list[MethodScores] = field(default_factory=list)
+
+    def format(self) -> str:
+        """The table printed by ``depth-nodes eval``."""
+        n = f'{self.threshold:g}'
+        head = (f'{"method":<44} {"bad-" + n + " dense":>12} {"sparse":>8} {"density":>8} '
+                f'{"avgerr":>7} {"nonocc dense":>13} {"sparse":>8} {"AUC/opt":>8}')
+        lines = [
+            f'bag {self.bag}: {self.frames} frames {self.size[0]}x{self.size[1]}, '
+            f'ground truth {self.gt_topic}, disparity {self.gt_range[0]:.1f}..'
+            f'{self.gt_range[1]:.1f} px',
+            head, '-' * len(head),
+        ]
+        for r in self.rows:
+            auc = f'{r.auc_ratio:8.2f}' if r.auc_ratio is not None else f'{"-":>8}'
+            missing = f'  ({r.missing_frames} frames missing)' if r.missing_frames else ''
+            lines.append(
+                f'{r.method:<44} {r.bad_dense:12.4f} {r.bad_sparse:8.4f} {r.density:8.3f} '
+                f'{r.avgerr:7.3f} {r.bad_dense_nonocc:13.4f} {r.bad_sparse_nonocc:8.4f} '
+                f'{auc}{missing}'
+            )
+        if not self.rows:
+            lines.append('(no disparity to score: nothing was published and no baseline ran)')
+        return '\n'.join(lines)
+
+
+def _stamp(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def _load(reader: BagReader, topics: list[str]) -> dict[str, dict[int, Any]]:
+    by_topic: dict[str, dict[int, Any]] = defaultdict(dict)
+    for bag_msg in reader.messages(topics):
+        msg = bag_msg.deserialize()
+        by_topic[bag_msg.topic][_stamp(msg)] = msg
+    return by_topic
+
+
+def _rectified_pair(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> tuple[Array, Array]:
+    left = data.get(f'{ns}/left/image_rect', {}).get(stamp)
+    right = data.get(f'{ns}/right/image_rect', {}).get(stamp)
+    if left is not None and right is not None:
+        pair = [(to_gray(image_to_array(m), m.encoding)) for m in (left, right)]
+    else:
+        pair = []
+        for side in ('left', 'right'):
+            raw = data.get(f'{ns}/{side}/image_raw', {}).get(stamp)
+            info = data.get(f'{ns}/{side}/camera_info', {}).get(stamp)
+            if raw is None or info is None:
+                raise BagError(f'no rectified or raw {side} image with camera_info at stamp '
+                               f'{stamp} under {ns}: cannot run the OpenCV baseline '
+                               '(use --no-baseline)')
+            gray = to_gray(image_to_array(raw), raw.encoding)
+            pair.append(rectify_image(gray, camera_info_to_model(info)))
+    return tuple(np.ascontiguousarray(p).astype(np.uint8) for p in pair)  # type: ignore[return-value]
+
+
+class _Accumulator:
+    """Collects per-frame estimates so scores are pixel-weighted over all frames."""
+
+    def __init__(self) -> None:
+        self.est: list[Array] = []
+        self.gt: list[Array] = []
+        self.nonocc: list[Array] = []
+        self.conf: list[Array] = []
+        self.missing = 0
+
+    def add(self, est: Array | None, gt: Array, nonocc: Array, conf: Array | None = None) -> None:
+        if est is None:
+            self.missing += 1
+            est = np.full(gt.shape, np.nan, np.float32)
+        self.est.append(est)
+        self.gt.append(gt)
+        self.nonocc.append(nonocc)
+        if conf is not None:
+            self.conf.append(conf)
+
+    def scores(self, method: str, threshold: float) -> MethodScores:
+        # frames stacked vertically: the metrics are per pixel, so this pools all frames
+        est, gt, nonocc = (np.concatenate(x) for x in (self.est, self.gt, self.nonocc))
+        every = disparity_errors(est, gt, n=threshold)
+        visible = disparity_errors(est, gt, valid_mask=nonocc, n=threshold)
+        auc = None
+        if self.conf and len(self.conf) == len(self.est):
+            error = np.abs(est - gt)
+            auc = sparsification_auc(np.concatenate(self.conf), error,
+                                     valid_mask=np.isfinite(gt), n=threshold).ratio
+        return MethodScores(method, len(self.est), self.missing, every.bad_dense,
+                            every.bad_sparse, every.density, every.avgerr,
+                            visible.bad_dense, visible.bad_sparse, auc)
+
+
+def evaluate_bag(
+    path: str | Path,
+    *,
+    threshold: float = 2.0,
+    baselines: bool = True,
+    previews: str | Path | None = None,
+) -> EvalReport:
+    """Score every disparity in the bag at ``path`` against its ground truth.
+
+    Raises:
+        BagError: The bag is missing/corrupt or has no ``.../left/disparity_gt`` topic.
+    """
+    with BagReader(path) as reader:
+        gt_topics = sorted(t for t, ty in reader.topics.items()
+                           if t.endswith(GT_SUFFIX) and ty == DISPARITY)
+        if not gt_topics:
+            raise BagError(f'{path} has no ground-truth topic (…{GT_SUFFIX}, '
+                           'stereo_msgs/msg/DisparityImage): nothing to evaluate against')
+        gt_topic = gt_topics[0]
+        ns = gt_topic[: -len(GT_SUFFIX)]
+        estimates = sorted(t for t, ty in reader.topics.items()
+                           if ty == DISPARITY and not t.endswith('_gt'))
+        confidences = sorted(t for t, ty in reader.topics.items()
+                             if ty == IMAGE and t.endswith('/confidence'))
+        wanted = [gt_topic, *estimates, *confidences]
+        extra = [f'{ns}/left/occlusion_gt', f'{ns}/left/image_rect', f'{ns}/right/image_rect']
+        if previews is not None:
+            extra.append(f'{ns}/left/depth_gt')
+        if baselines:
+            extra += [f'{ns}/{s}/{k}' for s in ('left', 'right')
+                      for k in ('image_raw', 'camera_info')]
+        wanted += [t for t in extra if t in reader.topics]
+        data = _load(reader, wanted)
+
+    gt_frames = data[gt_topic]
+    first = read_disparity(next(iter(gt_frames.values())))
+    report = EvalReport(str(path), gt_topic, len(gt_frames), first.disparity.shape[::-1],
+                        (np.inf, -np.inf), threshold)
+    acc: dict[str, _Accumulator] = defaultdict(_Accumulator)
+    conf_for = {c: _disparity_for(c, estimates) for c in confidences}
+    for stamp in sorted(gt_frames):
+        gt = read_disparity(gt_frames[stamp]).disparity
+        finite = gt[np.isfinite(gt)]
+        report.gt_range = (min(report.gt_range[0], float(finite.min())),
+                           max(report.gt_range[1], float(finite.max())))
+        occ_msg = data.get(f'{ns}/left/occlusion_gt', {}).get(stamp)
+        nonocc = image_to_array(occ_msg) == 0 if occ_msg is not None else np.isfinite(gt)
+        frame_out: dict[str, Array] = {'ground truth': gt}
+        maps: dict[str, Array] = {}
+        depth_msg = data.get(f'{ns}/left/depth_gt', {}).get(stamp)
+        if depth_msg is not None:
+            maps['depth_gt'] = image_to_array(depth_msg)
+        for topic in estimates:
+            msg = data[topic].get(stamp)
+            est = read_disparity(msg).disparity if msg is not None else None
+            conf_topic = next((c for c, d in conf_for.items() if d == topic), None)
+            conf_msg = data.get(conf_topic, {}).get(stamp) if conf_topic else None
+            conf = image_to_array(conf_msg) if conf_msg is not None else None
+            acc[topic].add(est, gt, nonocc, conf)
+            if conf is not None and conf_topic is not None:
+                maps[f'{conf_topic}_confidence'] = conf
+            if est is not None:
+                frame_out[topic] = est
+        if baselines:
+            left, right = _rectified_pair(data, ns, stamp)
+            drange = opencv_range(0, float(np.nanmax(gt)))
+            for settings in BASELINES:
+                est = opencv_sgbm(left, right, settings, disparity_range=drange)
+                acc[settings.label].add(est, gt, nonocc)
+                frame_out[settings.label] = est
+        if previews is not None:
+            _write_previews(Path(previews), stamp, frame_out, maps, threshold)
+    report.rows = [a.scores(m, threshold) for m, a in acc.items()]
+    return report
+
+
+def _disparity_for(confidence_topic: str, estimates: list[str]) -> str | None:
+    """The disparity a confidence map belongs to: checked, else raw, in its namespace."""
+    ns = confidence_topic.rsplit('/', 1)[0]
+    for name in ('disparity_checked', 'disparity'):
+        if f'{ns}/{name}' in estimates:
+            return f'{ns}/{name}'
+    return None
+
+
+def _slug(name: str) -> str:
+    return ''.join(c if c.isalnum() else '_' for c in name).strip('_')
+
+
+def _colour(values: Array, top: float, colormap: int) -> Array:
+    """Map [0, top] through ``colormap``; non-finite pixels black."""
+    scaled = np.clip(np.nan_to_num(values) * (255.0 / max(top, 1e-6)), 0, 255).astype(np.uint8)
+    img = cv2.applyColorMap(scaled, colormap)
+    img[~np.isfinite(values)] = 0
+    return np.asarray(img)
+
+
+def _write_previews(folder: Path, stamp: int, frame: dict[str, Array], maps: dict[str, Array],
+                    threshold: float) -> None:
+    """PNGs of one frame, invalid pixels black: every disparity (TURBO over the ground-truth
+    range), its error (INFERNO, saturating at 2N px), depth (TURBO) and confidence (grey).
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    gt = frame['ground truth']
+    top = float(np.nanmax(gt))
+    for name, disp in frame.items():
+        cv2.imwrite(str(folder / f'{stamp}_{_slug(name)}_disparity.png'),
+                    _colour(disp, top, cv2.COLORMAP_TURBO))
+        if name != 'ground truth':
+            cv2.imwrite(str(folder / f'{stamp}_{_slug(name)}_error.png'),
+                        _colour(np.abs(disp - gt), 2 * threshold, cv2.COLORMAP_INFERNO))
+    for name, values in maps.items():
+        if name == 'depth_gt':
+            img = _colour(values, float(np.nanmax(values)), cv2.COLORMAP_TURBO)
+            cv2.imwrite(str(folder / f'{stamp}_depth_gt.png'), img)
+        else:
+            grey = np.clip(np.nan_to_num(values) * 255.0, 0, 255).astype(np.uint8)
+            cv2.imwrite(str(folder / f'{stamp}_{_slug(name)}.png'), grey)

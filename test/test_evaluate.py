@@ -1,0 +1,137 @@
+"""`depth-nodes eval`: exact scores on hand-made estimates, the OpenCV reference, errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from std_msgs.msg import Header
+
+from conftest import run_cli
+from depth_nodes.errors import BagError
+from depth_nodes.ros.disparity import build_disparity
+from depth_nodes.ros.image import array_to_image
+from depth_nodes.tools.bagio import BagWriter
+from depth_nodes.tools.evaluate import evaluate_bag
+
+H, W, D = 60, 96, 8.0
+N_FRAMES = 2
+
+
+def _header(i: int) -> Header:
+    header = Header()
+    header.stamp.sec = 10 + i
+    header.frame_id = 'left'
+    return header
+
+
+def _scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A fronto-parallel textured plane at disparity D: right(x) = left(x + D)."""
+    wide = cv2.GaussianBlur(rng.integers(0, 256, (H, W + 16)).astype(np.float32), (3, 3), 0)
+    left = wide[:, 8:8 + W]
+    right = wide[:, 8 + int(D):8 + int(D) + W]
+    return left.astype(np.uint8), right.astype(np.uint8)
+
+
+def _bag(path: Path, with_estimate: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(1)
+    bad = rng.random((H, W)) < 0.1
+    invalid = ~bad & (rng.random((H, W)) < 0.1)
+    gt = np.full((H, W), D, np.float32)
+    est = gt.copy()
+    est[bad] += 5.0
+    est[invalid] = np.nan
+    occlusion = np.zeros((H, W), np.uint8)
+    occlusion[:, :4] = 255
+    with BagWriter(path) as writer:
+        for i in range(N_FRAMES):
+            h, t = _header(i), (10 + i) * 10**9
+            left, right = _scene(rng)
+            writer.write('/stereo/left/image_rect', array_to_image(left, 'mono8', h), t)
+            writer.write('/stereo/right/image_rect', array_to_image(right, 'mono8', h), t)
+            writer.write('/stereo/left/disparity_gt', build_disparity(
+                gt, h, focal=100.0, baseline=0.1, min_disparity=0.0, max_disparity=D,
+                delta_d=0.0), t)
+            writer.write('/stereo/left/occlusion_gt', array_to_image(occlusion, 'mono8', h), t)
+            if with_estimate:
+                writer.write('/stereo/disparity', build_disparity(
+                    est, h, focal=100.0, baseline=0.1, min_disparity=0.0, max_disparity=64.0,
+                    delta_d=1 / 16), t)
+                conf = np.where(bad, 0.1, np.where(invalid, 0.0, 0.9)).astype(np.float32)
+                writer.write('/stereo/confidence', array_to_image(conf, '32FC1', h), t)
+    return bad, invalid
+
+
+def test_scores_match_hand_computed_values(tmp_path: Path) -> None:
+    bad, invalid = _bag(tmp_path / 'bag')
+    report = evaluate_bag(tmp_path / 'bag', previews=tmp_path / 'png')
+    rows = {r.method: r for r in report.rows}
+    ours = rows['/stereo/disparity']
+    n = bad.size
+    assert ours.frames == N_FRAMES
+    assert ours.missing_frames == 0
+    assert ours.bad_dense == pytest.approx((bad.sum() + invalid.sum()) / n)
+    assert ours.bad_sparse == pytest.approx(bad.sum() / (n - invalid.sum()))
+    assert ours.density == pytest.approx(1 - invalid.sum() / n)
+    assert ours.avgerr == pytest.approx(5.0 * bad.sum() / (n - invalid.sum()))
+    visible = np.ones((H, W), bool)
+    visible[:, :4] = False
+    assert ours.bad_dense_nonocc == pytest.approx(
+        ((bad | invalid) & visible).sum() / visible.sum())
+    # every bad or invalid pixel has a lower confidence than every good one: optimal ranking
+    assert ours.auc_ratio == pytest.approx(1.0, abs=0.01)
+    assert report.gt_range == (D, D)
+    assert report.size == (W, H)
+    # the OpenCV reference ran on the same rectified pair and does well on this easy plane
+    for label in ('opencv SGBM, stereo_image_proc defaults', 'opencv SGBM MODE_HH, tuned P1/P2'):
+        assert rows[label].bad_sparse_nonocc < 0.05, label
+        assert rows[label].density > 0.5, label
+    pngs = sorted(p.name for p in (tmp_path / 'png').iterdir())
+    assert len([p for p in pngs if p.endswith('_disparity.png')]) == N_FRAMES * 4
+    assert len([p for p in pngs if p.endswith('_error.png')]) == N_FRAMES * 3
+    assert len([p for p in pngs if p.endswith('_confidence.png')]) == N_FRAMES
+    assert 'opencv SGBM, stereo_image_proc defaults' in report.format()
+
+
+def test_missing_estimate_frames_are_counted_as_invalid(tmp_path: Path) -> None:
+    _bag(tmp_path / 'bag', with_estimate=False)
+    with BagWriter(tmp_path / 'partial') as writer:
+        h = _header(0)
+        writer.write('/stereo/left/disparity_gt', build_disparity(
+            np.full((H, W), D, np.float32), h, focal=1.0, baseline=1.0, min_disparity=0.0,
+            max_disparity=D, delta_d=0.0), 10**10)
+        writer.write('/stereo/left/disparity_gt', build_disparity(
+            np.full((H, W), D, np.float32), _header(1), focal=1.0, baseline=1.0,
+            min_disparity=0.0, max_disparity=D, delta_d=0.0), 11 * 10**9)
+        writer.write('/stereo/disparity', build_disparity(
+            np.full((H, W), D, np.float32), h, focal=1.0, baseline=1.0, min_disparity=0.0,
+            max_disparity=D, delta_d=0.0), 10**10)
+    report = evaluate_bag(tmp_path / 'partial', baselines=False)
+    (row,) = report.rows
+    assert row.missing_frames == 1
+    assert row.bad_dense == pytest.approx(0.5)
+    assert row.bad_sparse == 0.0
+    assert '1 frames missing' in report.format()
+
+
+def test_bag_without_ground_truth(tmp_path: Path) -> None:
+    with BagWriter(tmp_path / 'bag') as writer:
+        writer.write('/x', array_to_image(np.zeros((2, 2), np.uint8), 'mono8'), 1)
+    with pytest.raises(BagError, match='has no ground-truth topic'):
+        evaluate_bag(tmp_path / 'bag')
+    result = run_cli(['eval', str(tmp_path / 'bag')])
+    assert result.returncode == 1
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert 'depth-nodes eval: error:' in result.stderr
+
+
+def test_baseline_needs_images(tmp_path: Path) -> None:
+    with BagWriter(tmp_path / 'bag') as writer:
+        writer.write('/stereo/left/disparity_gt', build_disparity(
+            np.full((H, W), D, np.float32), _header(0), focal=1.0, baseline=1.0,
+            min_disparity=0.0, max_disparity=D, delta_d=0.0), 1)
+    with pytest.raises(BagError, match='cannot run the OpenCV baseline'):
+        evaluate_bag(tmp_path / 'bag')
+    assert evaluate_bag(tmp_path / 'bag', baselines=False).rows == []
