@@ -7,6 +7,7 @@ graph would carry, and the same node classes can process them offline.
 
 from __future__ import annotations
 
+import functools
 import importlib
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -165,9 +166,12 @@ class BagWriter:
         path: The bag folder to create; it must not exist unless ``overwrite``.
         compress: Compress the MCAP chunks with zstd.
         overwrite: Remove an existing bag folder at ``path`` first.
+        compression_level: zstd level of the chunks (rosbags uses zstd's default, 3);
+            the committed bags use 19, which makes float ground truth about 40% smaller.
     """
 
-    def __init__(self, path: str | Path, *, compress: bool = True, overwrite: bool = False) -> None:
+    def __init__(self, path: str | Path, *, compress: bool = True, overwrite: bool = False,
+                 compression_level: int | None = None) -> None:
         self.path = Path(path)
         if self.path.exists():
             if not overwrite:
@@ -183,6 +187,8 @@ class BagWriter:
         self._connections: dict[str, Any] = {}
         self.counts: Counter[str] = Counter()
         self._writer.open()
+        if compress and compression_level is not None:
+            _set_chunk_compression_level(self._writer, compression_level)
 
     def set_custom_data(self, key: str, value: str) -> None:
         """Store a key/value string in the bag's metadata (e.g. the generator's seed)."""
@@ -222,6 +228,18 @@ class BagWriter:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def _set_chunk_compression_level(writer: Writer, level: int) -> None:
+    """Swap the MCAP storage's chunk compressor for one with an explicit zstd level."""
+    storage = writer.storage
+    if not hasattr(storage, 'compressor'):
+        raise BagError('this rosbags version does not allow a zstd level for MCAP chunks')
+    try:
+        from compression import zstd  # type: ignore[import-not-found]
+    except ImportError:
+        from backports import zstd  # type: ignore[import-not-found,no-redef]
+    storage.compressor = functools.partial(zstd.compress, level=level)
 
 
 def _remove_tree(path: Path) -> None:
