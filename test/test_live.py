@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
@@ -18,6 +19,7 @@ from depth_nodes.tools.bagio import BagReader, BagWriter
 pytestmark = pytest.mark.ros
 
 N_FRAMES = 12
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 
 def _bag(path: Path) -> None:
@@ -48,11 +50,11 @@ def test_play_into_record_is_lossless_and_byte_exact(tmp_path: Path,
     _bag(tmp_path / 'in')
     recorder = subprocess.Popen(
         [sys.executable, '-m', 'depth_nodes.tools.cli', 'record', str(tmp_path / 'rec'),
-         '--topics', '/cam/image_raw', '/cam/camera_info',
-         '--max-messages', str(2 * N_FRAMES), '--duration', '120'],
+         '--topics', '/cam/image_raw', '/cam/camera_info', '/clock',
+         '--max-messages', str(4 * N_FRAMES), '--duration', '120'],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ros_env, cwd=REPO)
     try:
-        played = run_cli(['play', str(tmp_path / 'in'), '--rate', '4',
+        played = run_cli(['play', str(tmp_path / 'in'), '--rate', '4', '--clock',
                           '--wait-for-subscribers', '60'], env=ros_env, timeout=180)
         assert played.returncode == 0, played.stderr
         assert f'played {2 * N_FRAMES} messages' in played.stdout
@@ -60,8 +62,14 @@ def test_play_into_record_is_lossless_and_byte_exact(tmp_path: Path,
     finally:
         recorder.kill()
     assert recorder.returncode == 0, err
-    assert f'recorded {2 * N_FRAMES} messages' in out
+    assert f'recorded {4 * N_FRAMES} messages' in out
     recorded, played_bytes = _payloads(tmp_path / 'rec'), _payloads(tmp_path / 'in')
+    # one /clock message, carrying the bag time, before every played message
+    clock_ns = [TYPESTORE.deserialize_cdr(c, 'rosgraph_msgs/msg/Clock').clock
+                for c in recorded.pop('/clock')]
+    with BagReader(tmp_path / 'in') as reader:
+        bag_times = [m.timestamp for m in reader.messages()]
+    assert [c.sec * 10**9 + c.nanosec for c in clock_ns] == bag_times
     assert recorded.keys() == played_bytes.keys()
     for topic, originals in played_bytes.items():
         assert len(recorded[topic]) == len(originals), topic

@@ -88,8 +88,9 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
         if options.clock:
             from rosgraph_msgs.msg import Clock
 
-            clock_pub = node.create_publisher(Clock, '/clock', 10)
-        _wait_for_subscribers(pubs, options.wait_for_subscribers)
+            clock_pub = node.create_publisher(Clock, '/clock', _reliable())
+        waited = {**pubs, '/clock': clock_pub} if clock_pub is not None else pubs
+        _wait_for_subscribers(waited, options.wait_for_subscribers)
         if log:
             log.write(f'playing {reader.message_count} messages on {len(topics)} topics\n')
             log.flush()
@@ -98,7 +99,7 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
             published += _play_once(reader, topics, pubs, clock_pub, options.rate)
             if not options.loop:
                 break
-        for pub in pubs.values():
+        for pub in waited.values():
             pub.wait_for_all_acked(Duration(seconds=5.0))
         return published
     finally:
