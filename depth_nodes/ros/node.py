@@ -62,10 +62,6 @@ class Output:
         else:
             sink(self.topic, msg)
 
-    def has_listeners(self) -> bool:
-        """Whether anything would receive a message: a subscriber, or the harness."""
-        return self._node.sink is not None or self._publisher.get_subscription_count() > 0
-
 
 class DepthNode(Node):
     """Base class: declared inputs/outputs, REP 2003 QoS, counted drops.

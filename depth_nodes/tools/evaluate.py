@@ -117,7 +117,8 @@ def _rectified_pair(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> tup
                                '(use --no-baseline)')
             gray = to_gray(image_to_array(raw), raw.encoding)
             pair.append(rectify_image(gray, camera_info_to_model(info)))
-    return tuple(np.ascontiguousarray(p).astype(np.uint8) for p in pair)  # type: ignore[return-value]
+    left_img, right_img = (np.ascontiguousarray(p, dtype=np.uint8) for p in pair)
+    return left_img, right_img
 
 
 class _Accumulator:

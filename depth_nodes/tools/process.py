@@ -33,14 +33,20 @@ DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'stereo_pipeli
 
 
 def default_config_path() -> Path:
-    """The stereo pipeline config: the source tree's, else the installed share folder's."""
-    if DEFAULT_CONFIG.is_file():
-        return DEFAULT_CONFIG
+    """The stereo pipeline config: the source tree's, else an installed share folder's.
+
+    Looks in the source checkout, then ``<sys.prefix>/share/depth_nodes/config`` (where pip
+    puts the package's data files), then the ament index (a colcon install space).
+    """
+    installed = Path(sys.prefix) / 'share' / 'depth_nodes' / 'config' / DEFAULT_CONFIG.name
+    for candidate in (DEFAULT_CONFIG, installed):
+        if candidate.is_file():
+            return candidate
     try:
         from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory('depth_nodes')) / 'config' / DEFAULT_CONFIG.name
-    except Exception:  # no ament index: report the source path, which then fails clearly
+    except Exception:  # no ament index either: the source path, which then fails clearly
         return DEFAULT_CONFIG
 
 
