@@ -134,6 +134,14 @@ def test_cli_runs_the_graph_and_prints_counts(tmp_path: Path, ros_env: dict[str,
         '(use --force)']
 
 
+def test_output_cannot_be_the_input(tmp_path: Path, graph: GraphConfig) -> None:
+    _input_bag(tmp_path / 'in', _frames(1))
+    with pytest.raises(BagError, match='is the input bag'):
+        process_bag(tmp_path / 'in', tmp_path / 'in', config=graph, overwrite=True)
+    with BagReader(tmp_path / 'in') as reader:
+        assert reader.counts[RAW] == 1
+
+
 @pytest.mark.parametrize(('make', 'message'), [
     (lambda p: None, 'bag not found'),
     (lambda p: p.mkdir(), 'no metadata.yaml'),

@@ -153,6 +153,8 @@ def process_bag(
         BagError: The input bag is missing/corrupt, or the output exists.
         ConfigError: The graph or parameter file is invalid.
     """
+    if Path(in_bag).resolve() == Path(out_bag).resolve():
+        raise BagError(f'output bag {out_bag} is the input bag: choose another folder')
     config = config or load_graph_config(default_config_path())
     params = load_params_file(params_file) if params_file else {}
     report = ProcessReport()
