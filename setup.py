@@ -11,8 +11,11 @@ from setuptools import find_packages, setup
 
 PACKAGE = 'depth_nodes'
 
-# One console script per node, so `ros2 run depth_nodes <node>` works; filled as nodes land.
-NODE_SCRIPTS: list[str] = []
+# One console script per node, so `ros2 run depth_nodes <node>` works; named like the node's
+# plugin in depth_nodes/ros/graph.py::NODE_PLUGINS.
+NODE_SCRIPTS = [
+    'rectify = depth_nodes.nodes.rectify:main',
+]
 
 ROS_WHEELS = [
     'ros-jazzy-rclpy[fastrtps]',

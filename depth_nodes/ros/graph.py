@@ -27,9 +27,13 @@ import yaml
 from rclpy.parameter import Parameter
 
 from depth_nodes.errors import ConfigError
+from depth_nodes.ros.node import DepthNode
 
-#: Short plugin names of the nodes this package provides (filled in as nodes land).
-NODE_PLUGINS: dict[str, str] = {}
+#: Short plugin names of the nodes this package provides. Each is also the name of the
+#: node's console script (``ros2 run depth_nodes <plugin>``), which launch files rely on.
+NODE_PLUGINS: dict[str, str] = {
+    'rectify': 'depth_nodes.nodes.rectify:RectifyNode',
+}
 
 
 @dataclass
@@ -183,6 +187,8 @@ def instantiate(spec: NodeSpec, params: dict[str, Any], **node_kwargs: Any) -> A
         ConfigError: The plugin cannot be resolved or a parameter value has no ROS type.
     """
     cls = resolve_plugin(spec.plugin)
+    if not (isinstance(cls, type) and issubclass(cls, DepthNode)):
+        raise ConfigError(f'node plugin {spec.plugin!r} is not a DepthNode class')
     overrides = []
     for name, value in params.items():
         try:

@@ -13,15 +13,21 @@ It adds three things to ``rclpy.node.Node``, all of which the offline bag harnes
 
 from __future__ import annotations
 
+import sys
 import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
+
+from depth_nodes.errors import DepthNodesError
+from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchronizer
 
 #: Publishers keep this many messages by default (reliable, volatile).
 PUBLISHER_DEPTH = 10
@@ -117,6 +123,45 @@ class DepthNode(Node):
         self.outputs[out.topic] = out
         return out
 
+    def add_synced_inputs(
+        self,
+        inputs: list[tuple[type, str]],
+        callback: Callable[..., None],
+        *,
+        queue_size: int,
+        approximate: bool = False,
+        max_interval: float | None = None,
+    ) -> ExactTimeSynchronizer | ApproximateTimeSynchronizer:
+        """Subscribe to several topics and call ``callback(*msgs)`` for each matched set.
+
+        Matching is by header stamp, exact or (``approximate``) by the ApproximateTime
+        policy. Messages the synchroniser discards are counted as drops with the reason
+        ``sync_<why>`` (``sync_unmatched``, ``sync_queue_full``, ...), so an image that never
+        found its camera_info is not lost silently.
+        """
+        if approximate:
+            sync: ExactTimeSynchronizer | ApproximateTimeSynchronizer = (
+                ApproximateTimeSynchronizer(len(inputs), callback, queue_size=queue_size,
+                                            max_interval=max_interval))
+        else:
+            sync = ExactTimeSynchronizer(len(inputs), callback, queue_size=queue_size)
+        seen: Counter[str] = Counter()
+        topics: list[str] = []
+
+        def feed(index: int) -> Callable[[Any], None]:
+            def on_message(msg: Any) -> None:
+                sync.add(index, msg)
+                for why, count in sync.dropped.items():
+                    if count > seen[why]:
+                        self.drop(f'sync_{why}', f'{count - seen[why]} message(s) from '
+                                  f'{", ".join(topics)} could not be matched by stamp ({why})')
+                        seen[why] = count
+            return on_message
+
+        for index, (msg_type, topic) in enumerate(inputs):
+            topics.append(self.add_input(msg_type, topic, feed(index)))
+        return sync
+
     def drop(self, reason: str, detail: str) -> None:
         """Count a frame that produced no output, and log why (throttled per reason).
 
@@ -132,3 +177,26 @@ class DepthNode(Node):
             self.get_logger().warning(
                 f'dropped frame ({reason}, {self.drops[reason]} so far): {detail}'
             )
+
+
+def run_node(node_class: type[DepthNode], args: list[str] | None = None) -> int:
+    """Run one node until Ctrl-C: the body of every node's console script ``main``.
+
+    Returns:
+        The process exit status: 0, or 1 when the node could not start (bad parameters).
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = node_class()
+        rclpy.spin(node)
+    except DepthNodesError as exc:
+        print(f'{node_class.__name__}: error: {exc}', file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -116,6 +116,7 @@ def make_rig(
     distortion_model: str,
     rotation_deg: float,
     seed: int,
+    distortion_scale: float = 1.0,
 ) -> tuple[CameraModel, CameraModel]:
     """Left and right cameras of a simulated rig (deterministic from ``seed``).
 
@@ -136,6 +137,8 @@ def make_rig(
         distortion_model: ``plumb_bob``, ``rational_polynomial`` or ``equidistant``.
         rotation_deg: Typical raw -> rectified rotation angle in degrees.
         seed: Random seed.
+        distortion_scale: Factor on every distortion coefficient (0: a pinhole camera that
+            still needs its rotation R undone).
 
     Returns:
         (left, right) camera models in the CameraInfo conventions.
@@ -149,7 +152,7 @@ def make_rig(
         if side == 'right':
             p[0, 3] = -f * baseline_m
         rot = _random_rotation(rng, rotation_deg)
-        dist = _random_distortion(rng, distortion_model)
+        dist = _random_distortion(rng, distortion_model) * distortion_scale
         fx = f * (1.0 - rng.uniform(0.01, 0.03))
         fy = fx * (1.0 + rng.uniform(-0.004, 0.004))
         centre = (cx_rect + rng.uniform(-4, 4) * w / 640, cy + rng.uniform(-4, 4) * h / 480)

@@ -59,6 +59,8 @@ class StereoSimConfig:
         right_cx_offset: ``cx_right - cx_left`` of the rectified cameras in pixels.
         distortion_model: ``plumb_bob``, ``rational_polynomial`` or ``equidistant``.
         rotation_deg: Typical angle of each camera's raw -> rectified rotation (0..10).
+        distortion_scale: Factor on the random distortion coefficients (0..2); 0 gives
+            pinhole cameras whose only flaw is the rotation.
         colour: rgb8 images when True, mono8 when False.
         frame_rate_hz: Frame rate that spaces the time stamps.
         noise_sigma: Standard deviation of the Gaussian noise of raw images, grey levels.
@@ -78,6 +80,7 @@ class StereoSimConfig:
     right_cx_offset: float = 0.0
     distortion_model: str = PLUMB_BOB
     rotation_deg: float = 1.0
+    distortion_scale: float = 1.0
     colour: bool = False
     frame_rate_hz: float = 10.0
     noise_sigma: float = 2.0
@@ -156,6 +159,7 @@ def validate_config(config: StereoSimConfig) -> None:
             f'must be one of {DISTORTION_MODELS}',
         ),
         ('rotation_deg', 0 <= config.rotation_deg <= 10, 'must be in [0, 10]'),
+        ('distortion_scale', 0 <= config.distortion_scale <= 2, 'must be in [0, 2]'),
         ('frame_rate_hz', config.frame_rate_hz > 0, 'must be positive'),
         ('noise_sigma', config.noise_sigma >= 0, 'must be >= 0'),
         ('right_gain', config.right_gain > 0, 'must be positive'),
@@ -180,6 +184,7 @@ def stereo_rig(config: StereoSimConfig) -> tuple[CameraModel, CameraModel]:
         distortion_model=config.distortion_model,
         rotation_deg=config.rotation_deg,
         seed=config.seed,
+        distortion_scale=config.distortion_scale,
     )
 
 

@@ -1,0 +1,132 @@
+"""Node parameters: declared with descriptors, validated, and applied atomically.
+
+A node lists :class:`ParamSpec` entries. :class:`NodeParameters` declares them (with
+description, range and read-only flag, so ``ros2 param describe`` shows them), rejects a
+change that is out of range, of the wrong type (rclpy checks these against the
+descriptor), or that a spec's own check or the node's cross-check refuses (with the reason
+returned to the caller), and otherwise swaps in a new immutable snapshot of all values. A
+node reads :attr:`NodeParameters.values` once at the start of a frame, so every frame sees
+one consistent set and a change applies from the next frame on.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from depth_nodes.errors import ConfigError
+
+#: Returns None when a value is acceptable, else the reason it is not.
+Check = Callable[[Any], str | None]
+CrossCheck = Callable[[Mapping[str, Any]], str | None]
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: name, default, description and constraints.
+
+    Attributes:
+        name: Parameter name.
+        default: Default value; its type is the parameter's type unless ``dynamic_typing``.
+        description: One line shown by ``ros2 param describe``.
+        min_value: Inclusive lower bound (numbers only).
+        max_value: Inclusive upper bound (numbers only).
+        read_only: Only settable at start-up (``--ros-args -p`` or a params file).
+        dynamic_typing: Accept values of more than one type (``check`` must vet them).
+        check: Extra validation: returns None when fine, else the reason.
+    """
+
+    name: str
+    default: Any
+    description: str
+    min_value: float | None = None
+    max_value: float | None = None
+    read_only: bool = False
+    dynamic_typing: bool = False
+    check: Check | None = None
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The ROS descriptor: description, range, read-only and typing flags."""
+        desc = ParameterDescriptor(description=self.description, read_only=self.read_only,
+                                   dynamic_typing=self.dynamic_typing)
+        if self.min_value is not None and self.max_value is not None:
+            if isinstance(self.default, int) and not isinstance(self.default, bool):
+                desc.integer_range = [IntegerRange(from_value=int(self.min_value),
+                                                   to_value=int(self.max_value), step=0)]
+            elif isinstance(self.default, float):
+                desc.floating_point_range = [FloatingPointRange(
+                    from_value=float(self.min_value), to_value=float(self.max_value), step=0.0)]
+        return desc
+
+
+class NodeParameters:
+    """Declares ``specs`` on ``node`` and keeps an atomically replaced snapshot of them.
+
+    Args:
+        node: The node.
+        specs: Its parameters.
+        cross_check: Validation of the whole set (e.g. two values that must agree).
+
+    Raises:
+        ConfigError: A start-up value (override) is invalid.
+    """
+
+    def __init__(self, node: Node, specs: list[ParamSpec],
+                 cross_check: CrossCheck | None = None) -> None:
+        self._specs = {s.name: s for s in specs}
+        self._cross_check = cross_check
+        self._lock = threading.Lock()
+        values: dict[str, Any] = {}
+        for spec in specs:
+            try:
+                param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
+            except ParameterException as exc:
+                raise ConfigError(f'{node.get_fully_qualified_name()}: parameter {spec.name}: '
+                                  f'{exc}') from None
+            values[spec.name] = param.value
+        reason = self._validate(values, values)
+        if reason:
+            raise ConfigError(f'{node.get_fully_qualified_name()}: {reason}')
+        self._values: Mapping[str, Any] = MappingProxyType(values)
+        node.add_on_set_parameters_callback(self._on_set)
+
+    @property
+    def values(self) -> Mapping[str, Any]:
+        """The current values (an immutable snapshot; take it once per frame)."""
+        return self._values
+
+    def _validate(self, candidate: Mapping[str, Any], changed: Mapping[str, Any]) -> str | None:
+        for name, value in changed.items():
+            spec = self._specs.get(name)
+            if spec is not None and spec.check is not None:
+                reason = spec.check(value)
+                if reason:
+                    return f'{name}={value!r} rejected: {reason}'
+        if self._cross_check is not None:
+            return self._cross_check(candidate)
+        return None
+
+    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
+        changed = {p.name: p.value for p in params if p.name in self._specs}
+        if not changed:
+            return SetParametersResult(successful=True)
+        with self._lock:
+            candidate = {**self._values, **changed}
+            reason = self._validate(candidate, changed)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+            self._values = MappingProxyType(candidate)
+        return SetParametersResult(successful=True)

@@ -1,0 +1,188 @@
+"""The rectify node: every bad input is a counted, logged drop; parameters change live."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+import rclpy
+from rcl_interfaces.srv import SetParameters
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, Image
+
+from depth_nodes.core.rectify import Rectifier
+from depth_nodes.nodes.rectify import RectifyNode
+from depth_nodes.ros.camera_info import model_to_camera_info
+from depth_nodes.ros.image import array_to_image, image_to_array
+from depth_nodes.sim import StereoSimConfig, simulate_stereo
+
+pytestmark = pytest.mark.ros
+
+CONFIG = StereoSimConfig(width=160, height=120, n_frames=1, seed=8, colour=True)
+FRAME = next(simulate_stereo(CONFIG))
+
+
+@pytest.fixture
+def context(ros_env: dict[str, str]) -> Any:
+    ctx = Context()
+    rclpy.init(args=[], context=ctx)
+    yield ctx
+    rclpy.shutdown(context=ctx)
+
+
+@pytest.fixture
+def node(context: Context) -> Any:
+    n = RectifyNode(context=context)
+    n.outbox = []
+    n.sink = lambda topic, msg: n.outbox.append((topic, msg))
+    yield n
+    n.destroy_node()
+
+
+def _pair(image: np.ndarray | None = None, encoding: str = 'rgb8',
+          **info_changes: Any) -> tuple[Image, CameraInfo]:
+    image_msg = array_to_image(FRAME.left_raw if image is None else image, encoding)
+    info = model_to_camera_info(FRAME.left_camera)
+    for name, value in info_changes.items():
+        setattr(info, name, value)
+    return image_msg, info
+
+
+def test_colour_frame_gives_colour_and_mono(node: Any) -> None:
+    node.on_frame(*_pair())
+    topics = [t for t, _ in node.outbox]
+    assert topics == ['/image_rect_color', '/image_rect']
+    color, mono = (m for _, m in node.outbox)
+    assert (color.encoding, mono.encoding) == ('rgb8', 'mono8')
+    expected = Rectifier().rectify(FRAME.left_raw, FRAME.left_camera)
+    np.testing.assert_array_equal(image_to_array(color), expected)
+    np.testing.assert_array_equal(image_to_array(mono),
+                                  cv2.cvtColor(expected, cv2.COLOR_RGB2GRAY))
+    assert node.drops == {}
+
+
+@pytest.mark.parametrize(('pair', 'reason'), [
+    (lambda: _pair(k=[0.0] * 9), 'uncalibrated'),
+    (lambda: _pair(d=[0.1, np.nan, 0.0, 0.0, 0.0]), 'bad_calibration'),
+    (lambda: _pair(d=[0.1, 0.0, 0.0]), 'bad_calibration'),
+    (lambda: _pair(width=320), 'size_mismatch'),
+    (lambda: _pair(FRAME.left_raw[:, :, 0], 'mono8', height=60), 'size_mismatch'),
+    (lambda: (_yuv(), _pair()[1]), 'unsupported_encoding'),
+    (lambda: (_truncated(), _pair()[1]), 'malformed_image'),
+])
+def test_bad_frames_are_counted_and_the_node_goes_on(node: Any, pair: Any, reason: str) -> None:
+    node.on_frame(*pair())
+    assert node.outbox == []
+    assert node.drops == {reason: 1}
+    node.on_frame(*_pair())  # the next good frame still comes out
+    assert len(node.outbox) == 2
+
+
+def _yuv() -> Image:
+    msg = array_to_image(FRAME.left_raw, 'rgb8')
+    msg.encoding = 'yuv422'
+    return msg
+
+
+def _truncated() -> Image:
+    msg = array_to_image(FRAME.left_raw, 'rgb8')
+    msg.data = bytes(msg.data)[:1000]
+    return msg
+
+
+def test_unmatched_stamps_are_counted(node: Any) -> None:
+    image, info = _pair()
+    info.header.stamp.sec = 5
+    # feed the node's subscription callbacks, which go through its stamp synchroniser
+    (image_cb, info_cb) = (spec.callback for spec in node.inputs)
+    image.header.stamp.sec = 1
+    image_cb(image)
+    info_cb(info)
+    matched_image, _ = _pair()
+    matched_image.header.stamp.sec = 5
+    image_cb(matched_image)
+    assert len(node.outbox) == 2
+    assert node.drops == {'sync_unmatched': 1}
+
+
+def _set(client_node: Any, executor: Any, name: str, value: Any) -> Any:
+    client = client_node.create_client(SetParameters, '/rectify/set_parameters')
+    assert client.wait_for_service(timeout_sec=30)
+    request = SetParameters.Request()
+    request.parameters = [Parameter(name, value=value).to_parameter_msg()]
+    future = client.call_async(request)
+    executor.spin_until_future_complete(future, timeout_sec=30)
+    assert future.done()
+    return future.result().results[0]
+
+
+def test_interpolation_changes_through_the_parameter_service(node: Any,
+                                                             context: Context) -> None:
+    peer = rclpy.create_node('tuner', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(peer)
+    try:
+        maps = Rectifier().maps(FRAME.left_camera)
+        for value, flag in (('nearest', cv2.INTER_NEAREST), (2, cv2.INTER_CUBIC),
+                            ('lanczos4', cv2.INTER_LANCZOS4)):
+            result = _set(peer, executor, 'interpolation', value)
+            assert result.successful, result.reason
+            node.outbox.clear()
+            node.on_frame(*_pair())
+            expected = cv2.remap(FRAME.left_raw, *maps, flag)
+            np.testing.assert_array_equal(image_to_array(node.outbox[0][1]), expected)
+        rejected = _set(peer, executor, 'interpolation', 'bilinear')
+        assert not rejected.successful
+        assert 'interpolation must be one of nearest' in rejected.reason
+        assert node.get_parameter('interpolation').value == 'lanczos4'
+        read_only = _set(peer, executor, 'queue_size', 9)
+        assert not read_only.successful
+        assert node.get_parameter('queue_size').value == 5
+    finally:
+        executor.shutdown()
+        peer.destroy_node()
+
+
+def test_bad_startup_parameter_is_a_clear_error(ros_env: dict[str, str]) -> None:
+    result = subprocess.run(
+        [sys.executable, '-m', 'depth_nodes.nodes.rectify', '--ros-args',
+         '-p', 'interpolation:=bilinear'],
+        capture_output=True, text=True, env=ros_env, timeout=120, check=False)
+    assert result.returncode == 1
+    assert 'RectifyNode: error: /rectify: interpolation=' in result.stderr
+    assert 'Traceback' not in result.stderr
+
+
+def test_node_runs_live_over_dds(context: Context) -> None:
+    live = RectifyNode(context=context, namespace='/cam')
+    peer = rclpy.create_node('camera', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(live)
+    executor.add_node(peer)
+    got: list[Image] = []
+    peer.create_subscription(Image, '/cam/image_rect', got.append, 10)
+    pub_image = peer.create_publisher(Image, '/cam/image', 10)
+    pub_info = peer.create_publisher(CameraInfo, '/cam/camera_info', 10)
+    try:
+        deadline = time.monotonic() + 30
+        while not got and time.monotonic() < deadline:
+            image, info = _pair()
+            pub_image.publish(image)
+            pub_info.publish(info)
+            executor.spin_once(timeout_sec=0.1)
+        assert got, 'no rectified image within 30 s'
+        expected = cv2.cvtColor(Rectifier().rectify(FRAME.left_raw, FRAME.left_camera),
+                                cv2.COLOR_RGB2GRAY)
+        np.testing.assert_array_equal(image_to_array(got[0]), expected)
+    finally:
+        executor.shutdown()
+        live.destroy_node()
+        peer.destroy_node()
