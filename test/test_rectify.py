@@ -19,6 +19,8 @@ from depth_nodes.ros.graph import load_graph_config
 from depth_nodes.ros.image import image_to_array, to_gray
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 from depth_nodes.tools.bagio import BagReader
+from depth_nodes.tools.bench import bench_rectify
+from depth_nodes.tools.evaluate import evaluate_bag
 from depth_nodes.tools.process import process_bag
 
 BAGS = REPO / 'bags'
@@ -238,3 +240,18 @@ def test_corresponding_points_share_a_row(bag: str) -> None:
     np.testing.assert_allclose(rect_left, np.column_stack([u, v])[inside], atol=0.05)
     row_error = np.abs(rect_left[:, 1] - rect_right[:, 1])
     assert row_error.max() < 0.05, (bag, row_error.max())
+
+
+def test_eval_reports_rectification_accuracy(processed: dict[str, Path]) -> None:
+    report = evaluate_bag(processed['stereo_qvga_fisheye'], baselines=False)
+    assert set(report.rectification_mad) == {'left', 'right'}
+    assert all(0.5 < mad < 2.5 for mad in report.rectification_mad.values())
+    assert 'rectified left vs ground-truth render: mean |diff|' in report.format()
+
+
+def test_bench_command_prints_its_figures() -> None:
+    result = bench_rectify(width=160, height=120, repeats=3)
+    assert min(result.node_ms, result.remap_ms, result.undistort_ms) > 0
+    text = result.format()
+    assert 'node / remap' in text
+    assert 'node / undistort' in text

@@ -111,18 +111,25 @@ class Rectifier:
         self.rebuilds = 0
         self._key: tuple[Any, ...] | None = None
         self._maps: tuple[Map, Map] | None = None
+        self._model: CameraModel | None = None
 
     def maps(self, model: CameraModel) -> tuple[Map, Map]:
         """The maps of ``model``, from the cache when its calibration is unchanged.
 
+        Passing the very same model object again skips even the comparison, so a model must
+        not be modified in place once used: pass a new one when the calibration changes.
+
         Raises:
             CalibrationError: The model is not usable; the cache is left as it was.
         """
+        if model is self._model and self._maps is not None:
+            return self._maps  # the caller passes the same (unchanged) model every frame
         key = calibration_key(model)
         if key != self._key or self._maps is None:
             self._maps = rectification_maps(model, fixed_point=self.fixed_point)
             self._key = key
             self.rebuilds += 1
+        self._model = model
         return self._maps
 
     def rectify(self, image: NDArray[Any], model: CameraModel,

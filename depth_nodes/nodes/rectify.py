@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 
+from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.rectify import INTERPOLATIONS, Rectifier, interpolation_flag
 from depth_nodes.errors import CalibrationError, MessageError
 from depth_nodes.ros.camera_info import camera_info_to_model
@@ -56,10 +57,25 @@ class RectifyNode(DepthNode):
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS)
         self.rectifier = Rectifier()
+        self._info_key: tuple[Any, ...] | None = None
+        self._models: tuple[CameraModel, CameraModel]
         self.pub_rect = self.add_output(Image, 'image_rect')
         self.pub_rect_color = self.add_output(Image, 'image_rect_color')
         self.add_synced_inputs([(Image, 'image'), (CameraInfo, 'camera_info')], self.on_frame,
                                queue_size=self.params.values['queue_size'])
+
+    def _calibration(self, info_msg: CameraInfo) -> tuple[CameraModel, CameraModel]:
+        """The camera model of ``info_msg`` and of the image it delivers, converted and
+        validated only when the CameraInfo content changes (drivers resend the same one)."""
+        key = (info_msg.width, info_msg.height, info_msg.distortion_model,
+               tuple(info_msg.k), tuple(info_msg.d), tuple(info_msg.r), tuple(info_msg.p),
+               info_msg.binning_x, info_msg.binning_y, info_msg.roi.x_offset,
+               info_msg.roi.y_offset, info_msg.roi.width, info_msg.roi.height)
+        if key != self._info_key:
+            model = camera_info_to_model(info_msg)
+            self._models = (model, model.binned())
+            self._info_key = key
+        return self._models
 
     def on_frame(self, image_msg: Image, info_msg: CameraInfo) -> None:
         """Rectify one raw image with the CameraInfo of the same stamp."""
@@ -73,8 +89,7 @@ class RectifyNode(DepthNode):
                       f'supported (supported: {", ".join(ENCODINGS)})')
             return
         try:
-            model = camera_info_to_model(info_msg)
-            delivered = model.binned()
+            model, delivered = self._calibration(info_msg)
         except CalibrationError as exc:
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
             return

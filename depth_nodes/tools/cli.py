@@ -86,6 +86,17 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bench(args: argparse.Namespace) -> int:
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
+    from depth_nodes.tools.bench import bench_rectify
+
+    if args.stage == 'rectify':
+        result = bench_rectify(width=args.width, height=args.height, repeats=args.frames,
+                               interpolation=args.interpolation)
+        print(result.format())
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the `depth-nodes` command."""
     parser = argparse.ArgumentParser(prog='depth-nodes', description=__doc__.split('\n')[0])
@@ -133,6 +144,15 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument('--previews', help='write PNG previews into this folder')
     ev.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
     ev.set_defaults(func=_cmd_eval)
+
+    bench = sub.add_parser('bench', help='speed figures beside OpenCV, measured in one run')
+    bench.add_argument('stage', choices=['rectify'], help='what to time')
+    bench.add_argument('--width', type=int, default=640)
+    bench.add_argument('--height', type=int, default=480)
+    bench.add_argument('--frames', type=int, default=200, help='timed repetitions (median)')
+    bench.add_argument('--interpolation', default='linear',
+                       help='rectify: nearest, linear, cubic, area or lanczos4')
+    bench.set_defaults(func=_cmd_bench)
     return parser
 
 

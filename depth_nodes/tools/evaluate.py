@@ -33,6 +33,8 @@ DISPARITY = 'stereo_msgs/msg/DisparityImage'
 IMAGE = 'sensor_msgs/msg/Image'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 GT_SUFFIX = '/left/disparity_gt'
+#: Border left out when comparing rectified images (a remap samples near the raw edge there).
+RECT_MARGIN = 16
 
 Array = NDArray[Any]
 
@@ -64,6 +66,8 @@ class EvalReport:
     gt_range: tuple[float, float]
     threshold: float
     rows: list[MethodScores] = field(default_factory=list)
+    #: Mean |image_rect - image_rect_gt| per side (grey levels, 16 px margin), when both exist.
+    rectification_mad: dict[str, float] = field(default_factory=dict)
 
     def format(self) -> str:
         """The table printed by ``depth-nodes eval``."""
@@ -84,6 +88,9 @@ class EvalReport:
                 f'{r.avgerr:7.3f} {r.bad_dense_nonocc:13.4f} {r.bad_sparse_nonocc:8.4f} '
                 f'{auc}{missing}'
             )
+        for side, mad in sorted(self.rectification_mad.items()):
+            lines.append(f'rectified {side} vs ground-truth render: mean |diff| {mad:.2f} grey '
+                         f'levels ({RECT_MARGIN} px margin)')
         if not self.rows:
             lines.append('(no disparity to score: nothing was published and no baseline ran)')
         return '\n'.join(lines)
@@ -181,7 +188,8 @@ def evaluate_bag(
         confidences = sorted(t for t, ty in reader.topics.items()
                              if ty == IMAGE and t.endswith('/confidence'))
         wanted = [gt_topic, *estimates, *confidences]
-        extra = [f'{ns}/left/occlusion_gt', f'{ns}/left/image_rect', f'{ns}/right/image_rect']
+        extra = [f'{ns}/left/occlusion_gt', f'{ns}/left/image_rect', f'{ns}/right/image_rect',
+                 f'{ns}/left/image_rect_gt', f'{ns}/right/image_rect_gt']
         if previews is not None:
             extra.append(f'{ns}/left/depth_gt')
         if baselines:
@@ -229,7 +237,26 @@ def evaluate_bag(
         if previews is not None:
             _write_previews(Path(previews), stamp, frame_out, maps, threshold)
     report.rows = [a.scores(m, threshold) for m, a in acc.items()]
+    report.rectification_mad = _rectification_mad(data, ns)
     return report
+
+
+def _rectification_mad(data: dict[str, dict[int, Any]], ns: str) -> dict[str, float]:
+    """Mean |rectified - rectified render| per side over all frames that have both."""
+    out = {}
+    for side in ('left', 'right'):
+        rect, truth = data.get(f'{ns}/{side}/image_rect', {}), data.get(
+            f'{ns}/{side}/image_rect_gt', {})
+        diffs = []
+        for stamp in sorted(set(rect) & set(truth)):
+            a = to_gray(image_to_array(rect[stamp]), rect[stamp].encoding).astype(np.float32)
+            b = to_gray(image_to_array(truth[stamp]), truth[stamp].encoding).astype(np.float32)
+            if a.shape == b.shape:
+                m = RECT_MARGIN
+                diffs.append(float(np.abs(a - b)[m:-m, m:-m].mean()))
+        if diffs:
+            out[side] = float(np.mean(diffs))
+    return out
 
 
 def _disparity_for(confidence_topic: str, estimates: list[str]) -> str | None:
