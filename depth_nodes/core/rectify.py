@@ -112,6 +112,7 @@ class Rectifier:
         self._key: tuple[Any, ...] | None = None
         self._maps: tuple[Map, Map] | None = None
         self._model: CameraModel | None = None
+        self._out: NDArray[Any] | None = None
 
     def maps(self, model: CameraModel) -> tuple[Map, Map]:
         """The maps of ``model``, from the cache when its calibration is unchanged.
@@ -133,7 +134,8 @@ class Rectifier:
         return self._maps
 
     def rectify(self, image: NDArray[Any], model: CameraModel,
-                interpolation: int | str = cv2.INTER_LINEAR) -> NDArray[Any]:
+                interpolation: int | str = cv2.INTER_LINEAR, *,
+                reuse_output: bool = False) -> NDArray[Any]:
         """Rectify ``image`` taken by ``model``.
 
         Args:
@@ -141,6 +143,9 @@ class Rectifier:
                 supports: uint8, uint16, float32).
             model: Its calibration.
             interpolation: A name of :data:`INTERPOLATIONS` or an OpenCV flag.
+            reuse_output: Write into a buffer kept between calls instead of a new array
+                (no per-frame allocation); the result is then overwritten by the next call
+                with the same shape and dtype, so copy it to keep it.
 
         Raises:
             CalibrationError: The model is not usable.
@@ -153,4 +158,11 @@ class Rectifier:
                 f'image is {image.shape[1]}x{image.shape[0]} but the camera_info describes '
                 f'{map1.shape[1]}x{map1.shape[0]} (after binning/ROI)'
             )
-        return np.asarray(cv2.remap(image, map1, map2, interpolation_flag(interpolation)))
+        flag = interpolation_flag(interpolation)
+        if not reuse_output:
+            return np.asarray(cv2.remap(image, map1, map2, flag))
+        shape = map1.shape[:2] + image.shape[2:]
+        if self._out is None or self._out.shape != shape or self._out.dtype != image.dtype:
+            self._out = np.empty(shape, image.dtype)
+        cv2.remap(image, map1, map2, flag, dst=self._out)
+        return self._out

@@ -104,7 +104,7 @@ class RectifyNode(DepthNode):
             self.drop('malformed_image', str(exc))
             return
         try:
-            rectified = self.rectifier.rectify(raw, model, interpolation)
+            rectified = self.rectifier.rectify(raw, model, interpolation, reuse_output=True)
         except CalibrationError as exc:  # validated above; kept for a cache rebuild failing
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
             return

@@ -60,8 +60,8 @@ class RectifyBench:
             f'  node, per frame (image_rect_color + image_rect) {self.node_ms:7.2f} ms',
             f'  cv2.remap with the cached maps                 {self.remap_ms:8.2f} ms'
             f'   node / remap     = {self.node_ms / self.remap_ms:5.2f}',
-            f'    of which: building the two Image messages  {self.messages_ms:8.2f} ms'
-            f'   (rclpy copies the pixels into the message; mono conversion included)',
+            f'  node part: building the two Image messages     {self.messages_ms:8.2f} ms'
+            f'   (pixels copied into rclpy messages, mono conversion included)',
             f'  cv2.undistort (no R, no P; maps every call)    {self.undistort_ms:8.2f} ms'
             f'   node / undistort = {self.node_ms / self.undistort_ms:5.2f}',
         ])
