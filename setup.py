@@ -46,7 +46,7 @@ setup(
     ],
     extras_require={
         'ros': ROS_WHEELS,
-        'dev': ['pytest', 'ruff', 'mypy'],
+        'dev': ['pytest', 'ruff', 'mypy', 'colcon-common-extensions', 'catkin_pkg'],
     },
     zip_safe=True,
     maintainer='depth_nodes maintainers',

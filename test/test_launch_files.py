@@ -1,0 +1,188 @@
+"""Launch files, checked without `launch` (it is not on PyPI): they compile, start only the
+package's console scripts, and describe the same nodes as the pipeline config they mirror.
+
+`generate_launch_description()` runs against stand-ins for `launch` and `launch_ros.actions`
+that record each Node(...) call, with the real ament_index_python looking the package up
+under AMENT_PREFIX_PATH: a prefix that mirrors the source tree here, the colcon install
+space in test_colcon_workspace.py.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import os
+import sys
+import types
+from pathlib import Path
+from typing import Any
+
+import pytest
+from rclpy.parameter import Parameter
+
+from conftest import REPO
+from depth_nodes.ros.graph import NODE_PLUGINS, load_graph_config
+
+PACKAGE = 'depth_nodes'
+LAUNCH_FILES = sorted((REPO / 'launch').glob('*.launch.py'))
+
+#: Keyword arguments of launch_ros.actions.Node (Jazzy) and of the ExecuteProcess action it
+#: extends; anything else is a typo that `ros2 launch` would reject.
+NODE_KWARGS = frozenset({
+    'executable', 'package', 'name', 'namespace', 'exec_name', 'parameters', 'remappings',
+    'ros_arguments', 'arguments', 'output', 'emulate_tty', 'respawn', 'respawn_delay',
+    'additional_env', 'env', 'cwd', 'prefix', 'sigterm_timeout', 'sigkill_timeout',
+    'log_cmd', 'on_exit', 'condition',
+})
+
+
+def node_scripts() -> dict[str, str]:
+    """``NODE_SCRIPTS`` of setup.py as ``{executable: 'module:function'}``."""
+    tree = ast.parse((REPO / 'setup.py').read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(
+                isinstance(t, ast.Name) and t.id == 'NODE_SCRIPTS' for t in node.targets):
+            entries = ast.literal_eval(node.value)
+            return {name.strip(): target.strip()
+                    for name, _, target in (entry.partition('=') for entry in entries)}
+    raise AssertionError('setup.py defines no NODE_SCRIPTS list')
+
+
+def mirrored_config(launch_file: Path, share: Path) -> Path | None:
+    """``config/X.yaml`` under ``share`` for ``launch/X.launch.py``, when it exists."""
+    config = share / 'config' / (launch_file.name.removesuffix('.launch.py') + '.yaml')
+    return config if config.is_file() else None
+
+
+def source_prefix(tmp_path: Path) -> Path:
+    """A prefix laid out like an install space whose share folder is the source tree's."""
+    prefix = tmp_path / 'prefix'
+    index = prefix / 'share' / 'ament_index' / 'resource_index' / 'packages'
+    index.mkdir(parents=True)
+    (index / PACKAGE).touch()
+    share = prefix / 'share' / PACKAGE
+    share.mkdir()
+    for name in ('config', 'launch', 'package.xml'):
+        (share / name).symlink_to(REPO / name)
+    return prefix
+
+
+def run_launch_file(path: Path, prefix: Path,
+                    monkeypatch: pytest.MonkeyPatch) -> list[dict[str, Any]]:
+    """Call ``generate_launch_description()`` of ``path`` with ``prefix`` as the only
+    AMENT_PREFIX_PATH entry; returns the keyword arguments of every Node it creates."""
+    calls: list[dict[str, Any]] = []
+
+    class LaunchDescription:
+        def __init__(self, initial_entities: Any = None) -> None:
+            self.entities = list(initial_entities or [])
+
+    class Node:
+        def __init__(self, **kwargs: Any) -> None:
+            unknown = set(kwargs) - NODE_KWARGS
+            assert not unknown, f'{path.name}: Node() has no arguments {sorted(unknown)}'
+            assert 'executable' in kwargs, f'{path.name}: Node() needs executable='
+            self.kwargs = kwargs
+            calls.append(kwargs)
+
+    launch = types.ModuleType('launch')
+    launch.LaunchDescription = LaunchDescription  # type: ignore[attr-defined]
+    launch_ros = types.ModuleType('launch_ros')
+    actions = types.ModuleType('launch_ros.actions')
+    actions.Node = Node  # type: ignore[attr-defined]
+    launch_ros.actions = actions  # type: ignore[attr-defined]
+    for name, module in (('launch', launch), ('launch_ros', launch_ros),
+                         ('launch_ros.actions', actions)):
+        monkeypatch.setitem(sys.modules, name, module)
+    monkeypatch.setenv('AMENT_PREFIX_PATH', str(prefix))
+    monkeypatch.setattr(sys, 'dont_write_bytecode', True)  # no __pycache__ in launch/
+
+    spec = importlib.util.spec_from_file_location(f'_launch_{path.stem.replace(".", "_")}',
+                                                  path)
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    description = module.generate_launch_description()
+    assert isinstance(description, LaunchDescription)
+    assert [e.kwargs for e in description.entities if isinstance(e, Node)] == calls
+    return calls
+
+
+def check_launch_file(path: Path, prefix: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every Node runs an installed console script of this package with parameter files
+    that exist; a launch file with a pipeline config describes exactly its nodes."""
+    share = prefix / 'share' / PACKAGE
+    calls = run_launch_file(path, prefix, monkeypatch)
+    assert calls, f'{path.name} starts no node'
+    scripts = node_scripts()
+    for call in calls:
+        assert call.get('package') == PACKAGE, call
+        assert call['executable'] in scripts, (
+            f'{path.name}: executable {call["executable"]!r} is not a console script of '
+            f'setup.py (NODE_SCRIPTS: {sorted(scripts)})')
+        for entry in call.get('parameters') or []:
+            if isinstance(entry, dict):
+                for name, value in entry.items():
+                    Parameter(name, value=value)  # raises for a value with no ROS type
+            else:
+                assert Path(os.fspath(entry)).is_file(), f'{path.name}: no file {entry}'
+    config = mirrored_config(path, share)
+    if config is None:
+        return
+    graph = load_graph_config(config)
+    assert [c.get('name') for c in calls] == [n.name for n in graph.nodes]
+    for call, spec in zip(calls, graph.nodes, strict=True):
+        where = f'{path.name} vs {config.name}, node {spec.name}'
+        assert call['executable'] == spec.plugin, where
+        assert call.get('namespace', '/') == spec.namespace, where
+        merged: dict[str, Any] = {}
+        for entry in call.get('parameters') or []:
+            assert isinstance(entry, dict), f'{where}: parameters must be inline'
+            merged.update(entry)
+        assert merged == spec.parameters, where
+        assert dict(call.get('remappings') or []) == spec.remappings, where
+
+
+@pytest.mark.parametrize('path', LAUNCH_FILES, ids=lambda p: p.name)
+def test_launch_file_compiles_and_defines_generate_launch_description(path: Path) -> None:
+    tree = ast.parse(path.read_text(), str(path))
+    compile(tree, str(path), 'exec')
+    functions = {node.name for node in tree.body if isinstance(node, ast.FunctionDef)}
+    assert 'generate_launch_description' in functions
+
+
+@pytest.mark.parametrize('path', LAUNCH_FILES, ids=lambda p: p.name)
+def test_launch_file_from_source_tree(path: Path, tmp_path: Path,
+                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    check_launch_file(path, source_prefix(tmp_path), monkeypatch)
+
+
+def test_stereo_pipeline_launch_mirrors_its_config() -> None:
+    launch = REPO / 'launch' / 'stereo_pipeline.launch.py'
+    assert launch in LAUNCH_FILES
+    assert mirrored_config(launch, REPO) == REPO / 'config' / 'stereo_pipeline.yaml'
+
+
+def test_every_node_plugin_has_a_console_script_of_the_same_name() -> None:
+    """`ros2 run depth_nodes <plugin>` and the launch files rely on it."""
+    scripts = node_scripts()
+    assert set(scripts) == set(NODE_PLUGINS)
+    for name, target in scripts.items():
+        assert target.partition(':')[0] == NODE_PLUGINS[name].partition(':')[0], name
+
+
+def test_a_mismatch_with_the_config_is_caught(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """The check is not vacuous: a launch file that drifts from its config fails it."""
+    prefix = source_prefix(tmp_path)
+    launch_dir = tmp_path / 'drift'
+    launch_dir.mkdir()
+    drifted = launch_dir / 'stereo_pipeline.launch.py'
+    source = (REPO / 'launch' / 'stereo_pipeline.launch.py').read_text()
+    text = source.replace("parameters=[spec.get('parameters') or {}]",
+                          "parameters=[{**(spec.get('parameters') or {}), 'queue_size': 9}]")
+    assert text != source, 'update this test to the launch file'
+    drifted.write_text(text)
+    with pytest.raises(AssertionError, match=r'vs stereo_pipeline\.yaml'):
+        check_launch_file(drifted, prefix, monkeypatch)
