@@ -15,6 +15,7 @@ PACKAGE = 'depth_nodes'
 # plugin in depth_nodes/ros/graph.py::NODE_PLUGINS.
 NODE_SCRIPTS = [
     'rectify = depth_nodes.nodes.rectify:main',
+    'sgm_stereo = depth_nodes.nodes.sgm_stereo:main',
 ]
 
 ROS_WHEELS = [

@@ -30,7 +30,7 @@ class SgbmSettings:
 
 
 #: stereo_image_proc's disparity node defaults (full_dp false -> MODE_SGBM).
-STEREO_IMAGE_PROC_DEFAULTS = SgbmSettings('opencv SGBM, stereo_image_proc defaults')
+STEREO_IMAGE_PROC_DEFAULTS = SgbmSettings('opencv SGBM MODE_SGBM, stereo_image_proc defaults')
 
 #: The usual tuning for StereoSGBM (P1 = 8 cn w^2, P2 = 32 cn w^2, small window), full DP.
 TUNED_HH = SgbmSettings(
@@ -46,7 +46,25 @@ TUNED_HH = SgbmSettings(
     prefilter_cap=63,
 )
 
-BASELINES = (STEREO_IMAGE_PROC_DEFAULTS, TUNED_HH)
+#: stereo_image_proc's defaults with full_dp true (MODE_HH).
+STEREO_IMAGE_PROC_DEFAULTS_HH = SgbmSettings(
+    'opencv SGBM MODE_HH, stereo_image_proc defaults', mode=cv2.STEREO_SGBM_MODE_HH)
+
+#: The tuned settings with MODE_SGBM (5 directions, single pass).
+TUNED_SGBM = SgbmSettings(
+    'opencv SGBM MODE_SGBM, tuned P1/P2',
+    mode=cv2.STEREO_SGBM_MODE_SGBM,
+    correlation_window_size=TUNED_HH.correlation_window_size,
+    P1=TUNED_HH.P1,
+    P2=TUNED_HH.P2,
+    uniqueness_ratio=TUNED_HH.uniqueness_ratio,
+    speckle_size=TUNED_HH.speckle_size,
+    speckle_range=TUNED_HH.speckle_range,
+    disp12_max_diff=TUNED_HH.disp12_max_diff,
+    prefilter_cap=TUNED_HH.prefilter_cap,
+)
+
+BASELINES = (STEREO_IMAGE_PROC_DEFAULTS, STEREO_IMAGE_PROC_DEFAULTS_HH, TUNED_SGBM, TUNED_HH)
 
 
 def opencv_range(min_disparity: int, max_disparity: float) -> int:

@@ -33,6 +33,7 @@ from depth_nodes.ros.node import DepthNode
 #: node's console script (``ros2 run depth_nodes <plugin>``), which launch files rely on.
 NODE_PLUGINS: dict[str, str] = {
     'rectify': 'depth_nodes.nodes.rectify:RectifyNode',
+    'sgm_stereo': 'depth_nodes.nodes.sgm_stereo:SgmStereoNode',
 }
 
 

@@ -183,8 +183,9 @@ def evaluate_bag(
                            'stereo_msgs/msg/DisparityImage): nothing to evaluate against')
         gt_topic = gt_topics[0]
         ns = gt_topic[: -len(GT_SUFFIX)]
+        # left-view disparities only: a right-view one (disparity_right) has no ground truth
         estimates = sorted(t for t, ty in reader.topics.items()
-                           if ty == DISPARITY and not t.endswith('_gt'))
+                           if ty == DISPARITY and not t.endswith(('_gt', '_right')))
         confidences = sorted(t for t, ty in reader.topics.items()
                              if ty == IMAGE and t.endswith('/confidence'))
         wanted = [gt_topic, *estimates, *confidences]
@@ -229,7 +230,7 @@ def evaluate_bag(
                 frame_out[topic] = est
         if baselines:
             left, right = _rectified_pair(data, ns, stamp)
-            drange = opencv_range(0, float(np.nanmax(gt)))
+            drange = _baseline_range(data, estimates, stamp, gt)
             for settings in BASELINES:
                 est = opencv_sgbm(left, right, settings, disparity_range=drange)
                 acc[settings.label].add(est, gt, nonocc)
@@ -257,6 +258,19 @@ def _rectification_mad(data: dict[str, dict[int, Any]], ns: str) -> dict[str, fl
         if diffs:
             out[side] = float(np.mean(diffs))
     return out
+
+
+def _baseline_range(data: dict[str, dict[int, Any]], estimates: list[str], stamp: int,
+                    gt: Array) -> int:
+    """OpenCV's disparity range: the widest one the estimated disparities searched (read
+    from their DisparityImage), so both search the same window; without an estimate, the
+    ground truth's maximum. Rounded up to a multiple of 16 (OpenCV's rule)."""
+    top = float(np.nanmax(gt))
+    for topic in estimates:
+        msg = data[topic].get(stamp)
+        if msg is not None:
+            top = max(top, float(msg.max_disparity))
+    return opencv_range(0, top)
 
 
 def _disparity_for(confidence_topic: str, estimates: list[str]) -> str | None:

@@ -1,0 +1,257 @@
+"""SGM stereo node: census Semi-Global Matching, a drop-in for stereo_image_proc's
+DisparityNode.
+
+Subscribes ``left/image_rect``, ``right/image_rect``, ``left/camera_info`` and
+``right/camera_info`` (exact stamps by default; ``approximate_sync`` for the
+ApproximateTime policy). Publishes ``disparity`` (stereo_msgs/DisparityImage, left view),
+``disparity_right`` (DisparityImage in the right view: x_left = x_right + d) and
+``cost_ratio`` (sensor_msgs/Image 32FC1, best / second-best aggregated cost of the left
+winner: low means unambiguous), the signals the cross-check node needs.
+
+Parameters share stereo_image_proc's names where the meaning is the same (min_disparity,
+disparity_range, uniqueness_ratio, P1, P2, queue_size, approximate_sync, and for the
+``opencv`` backend correlation_window_size, full_dp, prefilter_cap, speckle_size,
+speckle_range, disp12_max_diff); all but the synchronisation ones change at runtime and
+apply from the next frame. ``backend: opencv`` runs OpenCV's StereoSGBM for comparison
+(it publishes ``disparity`` only).
+
+Frames without output are counted and logged with a reason: ``size_mismatch``,
+``encoding_mismatch``, ``unsupported_encoding``, ``malformed_image``, ``uncalibrated``,
+``bad_calibration``, ``camera_info_mismatch`` (camera_info size differs from the image),
+``range_too_wide`` (the disparity window does not fit the image), ``sync_*``.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Mapping
+from typing import Any
+
+import cv2
+import numpy as np
+from sensor_msgs.msg import CameraInfo, Image
+from stereo_msgs.msg import DisparityImage
+
+from depth_nodes.core.baseline import SgbmSettings, opencv_sgbm
+from depth_nodes.core.camera import StereoModel
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS
+from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
+from depth_nodes.core.sgm.select import SUBPIXEL_MODES, SUBPIXEL_STEP
+from depth_nodes.errors import CalibrationError, MessageError
+from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.ros.disparity import build_disparity
+from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
+from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.params import NodeParameters, ParamSpec
+
+BACKENDS = ('census_sgm', 'opencv')
+
+
+def _one_of(choices: tuple[str, ...] | list[str]) -> Any:
+    def check(value: Any) -> str | None:
+        return None if value in choices else f'must be one of {", ".join(map(str, choices))}'
+    return check
+
+
+def _odd(value: int) -> str | None:
+    return None if value % 2 == 1 else 'must be odd'
+
+
+def _paths(value: int) -> str | None:
+    return None if value in VERTICAL_DIRECTIONS else 'must be 4, 8 or 16'
+
+
+PARAMETERS = [
+    ParamSpec('queue_size', 5, 'Synchroniser queue of the four inputs', 1, 1000,
+              read_only=True),
+    ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
+              'instead of exact stamps', read_only=True),
+    ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
+              'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
+    ParamSpec('backend', 'census_sgm', 'census_sgm (this package) or opencv (StereoSGBM)',
+              check=_one_of(BACKENDS)),
+    ParamSpec('min_disparity', 0, 'Smallest disparity searched, px (may be negative)',
+              -2048, 2048),
+    ParamSpec('disparity_range', 128, 'Number of disparities searched (any number with '
+              'census_sgm, a multiple of 16 with opencv)', 1, 4096),
+    ParamSpec('P1', 18.0, 'Penalty of a 1 px disparity change between neighbours',
+              0.0, 4000.0),
+    ParamSpec('P2', 220.0, 'Penalty of a larger disparity change (>= P1)', 0.0, 7936.0),
+    ParamSpec('uniqueness_ratio', 20.0, 'Percent by which the best cost must beat the best '
+              'non-neighbouring disparity', 0.0, 99.0),
+    ParamSpec('paths', 8, 'Aggregation paths: 4, 8 or 16', 4, 16, check=_paths),
+    ParamSpec('census_width', 5, 'Census window width (odd)', 3, 9, check=_odd),
+    ParamSpec('census_height', 5, 'Census window height (odd)', 3, 9, check=_odd),
+    ParamSpec('census_weight', 1, 'Weight of the census Hamming cost', 0, 8),
+    ParamSpec('intensity_weight', 1, 'Weight of the intensity cost (0: census only)', 0, 8),
+    ParamSpec('intensity_cost', 'bt', 'Intensity cost: bt (Birchfield-Tomasi) or ad',
+              check=_one_of(('bt', 'ad'))),
+    ParamSpec('intensity_truncation', 30, 'Cap of the intensity cost, grey levels', 1, 255),
+    ParamSpec('p2_adaptive_scale', 20.0, 'Grey-level scale of the image-adaptive P2 (0: '
+              'constant P2)', 0.0, 255.0),
+    ParamSpec('subpixel', 'parabola', 'Sub-pixel refinement: parabola, equiangular or none',
+              check=_one_of(list(SUBPIXEL_MODES))),
+    ParamSpec('median_filter', True, '3x3 median on the left disparity'),
+    ParamSpec('correlation_window_size', 5, 'opencv backend: block size (odd)', 1, 255,
+              check=_odd),
+    ParamSpec('full_dp', True, 'opencv backend: MODE_HH (8 paths) instead of MODE_SGBM'),
+    ParamSpec('prefilter_cap', 63, 'opencv backend: prefilter cap', 1, 63),
+    ParamSpec('speckle_size', 100, 'opencv backend: speckle window size', 0, 10000),
+    ParamSpec('speckle_range', 2, 'opencv backend: speckle range', 0, 64),
+    ParamSpec('disp12_max_diff', 1, 'opencv backend: left-right check (-1 off)', -1, 128),
+]
+
+
+def _cross_check(values: Mapping[str, Any]) -> str | None:
+    """Reject combinations no matcher accepts, with the reason."""
+    if values['P2'] < values['P1']:
+        return f'P2 ({values["P2"]}) must be >= P1 ({values["P1"]})'
+    limit = 65535 // values['paths'] - OUT_OF_RANGE_COST
+    if values['P2'] > limit:
+        return f'P2 ({values["P2"]}) must be <= {limit} with {values["paths"]} paths'
+    if values['census_width'] * values['census_height'] - 1 > 63:
+        return 'census window has more than 63 neighbours (at most 9x7)'
+    if values['census_weight'] == 0 and values['intensity_weight'] == 0:
+        return 'census_weight and intensity_weight cannot both be 0'
+    if values['backend'] == 'opencv' and values['disparity_range'] % 16:
+        return (f'disparity_range ({values["disparity_range"]}) must be a multiple of 16 '
+                'with the opencv backend')
+    return None
+
+
+def sgm_params(values: Mapping[str, Any]) -> SgmParams:
+    """The matcher settings of a parameter snapshot."""
+    return SgmParams(
+        min_disparity=values['min_disparity'], disparity_range=values['disparity_range'],
+        census_width=values['census_width'], census_height=values['census_height'],
+        census_weight=values['census_weight'], intensity_weight=values['intensity_weight'],
+        intensity_cost=values['intensity_cost'],
+        intensity_truncation=values['intensity_truncation'],
+        P1=round(values['P1']), P2=round(values['P2']),
+        p2_adaptive_scale=values['p2_adaptive_scale'], paths=values['paths'],
+        uniqueness_ratio=values['uniqueness_ratio'], subpixel=values['subpixel'],
+        median_filter=values['median_filter'])
+
+
+def opencv_settings(values: Mapping[str, Any]) -> SgbmSettings:
+    """StereoSGBM settings of a parameter snapshot (names as stereo_image_proc's)."""
+    return SgbmSettings(
+        'opencv', mode=cv2.STEREO_SGBM_MODE_HH if values['full_dp'] else cv2.STEREO_SGBM_MODE_SGBM,
+        correlation_window_size=values['correlation_window_size'], P1=round(values['P1']),
+        P2=round(values['P2']), uniqueness_ratio=round(values['uniqueness_ratio']),
+        speckle_size=values['speckle_size'], speckle_range=values['speckle_range'],
+        disp12_max_diff=values['disp12_max_diff'], prefilter_cap=values['prefilter_cap'])
+
+
+class SgmStereoNode(DepthNode):
+    """Census SGM on rectified stereo pairs; publishes both views' disparity and cost ratio."""
+
+    def __init__(self, node_name: str = 'sgm_stereo', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
+        values = self.params.values
+        self.matcher = SgmMatcher(sgm_params(values))
+        self._stereo_key: tuple[Any, ...] | None = None
+        self._stereo: StereoModel
+        self.pub_disparity = self.add_output(DisparityImage, 'disparity')
+        self.pub_disparity_right = self.add_output(DisparityImage, 'disparity_right')
+        self.pub_cost_ratio = self.add_output(Image, 'cost_ratio')
+        tolerance = values['approximate_sync_tolerance_seconds']
+        self.add_synced_inputs(
+            [(Image, 'left/image_rect'), (CameraInfo, 'left/camera_info'),
+             (Image, 'right/image_rect'), (CameraInfo, 'right/camera_info')],
+            self.on_frame, queue_size=values['queue_size'],
+            approximate=values['approximate_sync'], max_interval=tolerance or None)
+
+    def _stereo_model(self, left_info: CameraInfo, right_info: CameraInfo) -> StereoModel:
+        """The stereo geometry, converted and validated only when a CameraInfo changes."""
+        key = tuple((m.width, m.height, m.distortion_model, tuple(m.k), tuple(m.d),
+                     tuple(m.r), tuple(m.p), m.binning_x, m.binning_y)
+                    for m in (left_info, right_info))
+        if key != self._stereo_key:
+            left, right = (camera_info_to_model(m).binned() for m in (left_info, right_info))
+            self._stereo = StereoModel(left, right)
+            self._stereo_key = key
+        return self._stereo
+
+    def _grey_pair(self, left_msg: Image, right_msg: Image) -> tuple[Any, Any] | None:
+        """Both images as grey arrays, or None after counting the reason."""
+        if (left_msg.width, left_msg.height) != (right_msg.width, right_msg.height):
+            self.drop('size_mismatch', f'left image is {left_msg.width}x{left_msg.height}, '
+                      f'right image {right_msg.width}x{right_msg.height}')
+            return None
+        if left_msg.encoding != right_msg.encoding:
+            self.drop('encoding_mismatch', f'left image is {left_msg.encoding}, right image '
+                      f'{right_msg.encoding}')
+            return None
+        if left_msg.encoding not in ENCODINGS or left_msg.encoding == '32FC1':
+            self.drop('unsupported_encoding', f'image encoding {left_msg.encoding!r} is not a '
+                      'camera image (mono8, mono16, rgb8, bgr8, rgba8, bgra8)')
+            return None
+        try:
+            return tuple(to_gray(image_to_array(m), m.encoding)  # type: ignore[return-value]
+                         for m in (left_msg, right_msg))
+        except MessageError as exc:
+            self.drop('malformed_image', str(exc))
+            return None
+
+    def on_frame(self, left_msg: Image, left_info: CameraInfo, right_msg: Image,
+                 right_info: CameraInfo) -> None:
+        """Match one synchronised stereo pair."""
+        values = self.params.values
+        pair = self._grey_pair(left_msg, right_msg)
+        if pair is None:
+            return
+        left, right = pair
+        if not np.any(np.asarray(left_info.k)) or not np.any(np.asarray(right_info.k)):
+            self.drop('uncalibrated', 'a camera_info has K all zero: the stereo pair is not '
+                      'calibrated')
+            return
+        try:
+            stereo = self._stereo_model(left_info, right_info)
+        except CalibrationError as exc:
+            self.drop('bad_calibration', f'camera_info unusable: {exc}')
+            return
+        h, w = left.shape
+        if (stereo.left.width, stereo.left.height) != (w, h):
+            self.drop('camera_info_mismatch', f'images are {w}x{h} but camera_info describes '
+                      f'{stereo.left.width}x{stereo.left.height}')
+            return
+        lo, n = values['min_disparity'], values['disparity_range']
+        if n >= w or not -w < lo < w:
+            self.drop('range_too_wide', f'disparities {lo}..{lo + n - 1} do not fit an image '
+                      f'{w} px wide')
+            return
+        header = left_msg.header
+        common = {'focal': stereo.focal, 'baseline': stereo.baseline, 'min_disparity': lo,
+                  'max_disparity': lo + n - 1,
+                  'valid_window': (max(0, lo), 0, min(w, w + lo + n - 1), h)}
+        if values['backend'] == 'opencv':
+            disparity = opencv_sgbm(np.ascontiguousarray(left, np.uint8),
+                                    np.ascontiguousarray(right, np.uint8),
+                                    opencv_settings(values), min_disparity=lo,
+                                    disparity_range=n)
+            self.pub_disparity.publish(build_disparity(disparity, header, delta_d=1 / 16,
+                                                       **common))
+            return
+        params = sgm_params(values)
+        if params != self.matcher.params:
+            self.matcher.set_params(params)
+        result = self.matcher.match(left, right)
+        delta_d = SUBPIXEL_STEP if values['subpixel'] != 'none' else 1.0
+        self.pub_disparity.publish(build_disparity(result.disparity, header, delta_d=delta_d,
+                                                   **common))
+        right_common = dict(common, valid_window=(max(0, -lo - n + 1), 0, min(w, w - lo), h))
+        self.pub_disparity_right.publish(build_disparity(
+            result.disparity_right, right_msg.header, delta_d=delta_d, **right_common))
+        self.pub_cost_ratio.publish(array_to_image(result.cost_ratio, '32FC1', header))
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console script ``sgm_stereo`` (``ros2 run depth_nodes sgm_stereo``)."""
+    sys.exit(run_node(SgmStereoNode, args))
+
+
+if __name__ == '__main__':
+    main()

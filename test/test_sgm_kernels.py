@@ -1,0 +1,91 @@
+"""Every SGM numba kernel against its plain numpy reference, on small random inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.core.sgm.aggregate import aggregate_reference
+from depth_nodes.core.sgm.cost import (
+    census_transform,
+    census_transform_reference,
+    cost_volume,
+    cost_volume_reference,
+)
+from depth_nodes.core.sgm.select import select_reference
+
+
+def _pair(h: int = 23, w: int = 37, shift: int = 5, seed: int = 0) -> tuple[np.ndarray, ...]:
+    rng = np.random.default_rng(seed)
+    wide = rng.integers(0, 256, (h, w + shift)).astype(np.uint8)
+    left = wide[:, shift:]
+    right = np.clip(wide[:, :w].astype(int) + rng.integers(-3, 4, (h, w)), 0, 255)
+    return left, right.astype(np.uint8)
+
+
+@pytest.mark.parametrize('window', [(3, 3), (5, 5), (7, 9), (9, 7)])
+def test_census_matches_reference(window: tuple[int, int]) -> None:
+    left, _ = _pair()
+    np.testing.assert_array_equal(census_transform(left, window),
+                                  census_transform_reference(left, window))
+
+
+@pytest.mark.parametrize('settings', [
+    {'census_weight': 1, 'intensity_weight': 0},
+    {'census_weight': 0, 'intensity_weight': 1, 'intensity_cost': 'ad'},
+    {'census_weight': 0, 'intensity_weight': 2, 'intensity_cost': 'bt'},
+    {'census_weight': 2, 'intensity_weight': 1, 'intensity_cost': 'bt',
+     'intensity_truncation': 12},
+])
+@pytest.mark.parametrize('min_disparity', [0, -4, 3])
+def test_cost_volume_matches_reference(settings: dict[str, object], min_disparity: int) -> None:
+    left, right = _pair()
+    kwargs = {'min_disparity': min_disparity, 'disparity_range': 11,
+              'census_window': (5, 7), **settings}
+    np.testing.assert_array_equal(cost_volume(left, right, **kwargs),
+                                  cost_volume_reference(left, right, **kwargs))
+
+
+@pytest.mark.parametrize(('paths', 'scale', 'intensity'), [
+    (4, 0.0, 0), (8, 0.0, 0), (8, 12.0, 0), (8, 20.0, 1), (16, 0.0, 0), (16, 7.5, 2)])
+def test_aggregation_matches_reference(paths: int, scale: float, intensity: int) -> None:
+    left, right = _pair(h=17, w=29)
+    params = SgmParams(min_disparity=-2, disparity_range=9, census_width=5, census_height=5,
+                       intensity_weight=intensity, P1=5, P2=60, p2_adaptive_scale=scale,
+                       paths=paths, median_filter=False)
+    matcher = SgmMatcher(params)
+    matcher.match(left, right, keep_total=True)
+    cost = cost_volume_reference(left, right, min_disparity=-2, disparity_range=9,
+                                 census_window=(5, 5), intensity_weight=intensity)
+    expected = aggregate_reference(cost, left.astype(np.float32), paths, 5, 60, scale)
+    np.testing.assert_array_equal(matcher.total.astype(np.int64), expected)
+
+
+@pytest.mark.parametrize('subpixel', ['none', 'parabola', 'equiangular'])
+@pytest.mark.parametrize(('min_disparity', 'uniqueness'), [(0, 0), (-3, 15), (2, 5)])
+def test_selection_matches_reference(subpixel: str, min_disparity: int, uniqueness: int) -> None:
+    left, right = _pair(h=19, w=31, seed=3)
+    params = SgmParams(min_disparity=min_disparity, disparity_range=10, census_width=5,
+                       census_height=5, P1=4, P2=40, uniqueness_ratio=uniqueness,
+                       subpixel=subpixel, median_filter=False)
+    matcher = SgmMatcher(params)
+    result = matcher.match(left, right, keep_total=True)
+    want_left, want_right, want_ratio = select_reference(
+        matcher.total, min_disparity=min_disparity, uniqueness=uniqueness, subpixel=subpixel)
+    np.testing.assert_allclose(result.disparity, want_left, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(result.disparity_right, want_right, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(result.cost_ratio, want_ratio, rtol=0, atol=1e-6)
+    assert np.isnan(result.disparity).any() == np.isnan(want_left).any()
+
+
+def test_buffers_are_reused_across_frames() -> None:
+    left, right = _pair()
+    matcher = SgmMatcher(SgmParams(disparity_range=8, census_width=5, census_height=5))
+    first = matcher.match(left, right).disparity
+    again = matcher.match(left, right).disparity
+    assert first is again  # same buffer, refilled
+    assert matcher.allocations == 1
+    matcher.set_params(SgmParams(disparity_range=12, census_width=5, census_height=5))
+    matcher.match(left, right)
+    assert matcher.allocations == 2
