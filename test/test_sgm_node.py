@@ -1,0 +1,179 @@
+"""The sgm_stereo node: counted drops for bad input, live parameter changes, both backends."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+import rclpy
+from rcl_interfaces.srv import SetParameters
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+
+from depth_nodes.core.baseline import opencv_sgbm
+from depth_nodes.core.sgm import SgmMatcher
+from depth_nodes.nodes.sgm_stereo import SgmStereoNode, opencv_settings, sgm_params
+from depth_nodes.ros.camera_info import model_to_camera_info
+from depth_nodes.ros.disparity import read_disparity
+from depth_nodes.ros.image import array_to_image
+from depth_nodes.sim import StereoSimConfig, simulate_stereo
+
+pytestmark = pytest.mark.ros
+
+CONFIG = StereoSimConfig(width=160, height=120, n_frames=1, seed=6, distortion_scale=0.0,
+                         rotation_deg=0.0, noise_sigma=1.0)
+FRAME = next(simulate_stereo(CONFIG))
+
+
+@pytest.fixture
+def context(ros_env: dict[str, str]) -> Any:
+    ctx = Context()
+    rclpy.init(args=[], context=ctx)
+    yield ctx
+    rclpy.shutdown(context=ctx)
+
+
+@pytest.fixture
+def node(context: Context) -> Any:
+    n = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48)])
+    n.outbox = {}
+    n.sink = lambda topic, msg: n.outbox.__setitem__(topic, msg)
+    yield n
+    n.destroy_node()
+
+
+def _inputs(changes: dict[Any, Any] | None = None) -> list[Any]:
+    changes = dict(changes or {})
+    left = changes.pop('left', FRAME.left_rect_gt)
+    right = changes.pop('right', FRAME.right_rect_gt)
+    msgs = [array_to_image(left, changes.pop('left_encoding', 'mono8')),
+            model_to_camera_info(FRAME.left_camera),
+            array_to_image(right, changes.pop('right_encoding', 'mono8')),
+            model_to_camera_info(FRAME.right_camera)]
+    for (index, field), value in changes.items():
+        setattr(msgs[index], field, value)
+    return msgs
+
+
+def test_good_frame_publishes_three_outputs(node: Any) -> None:
+    node.on_frame(*_inputs())
+    assert set(node.outbox) == {'/disparity', '/disparity_right', '/cost_ratio'}
+    frame = read_disparity(node.outbox['/disparity'])
+    expected = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                               FRAME.right_rect_gt)
+    np.testing.assert_array_equal(frame.disparity, expected.disparity)
+    good = np.abs(frame.disparity - FRAME.disparity_gt) < 2
+    assert good.mean() > 0.75
+    assert node.drops == {}
+
+
+@pytest.mark.parametrize(('changes', 'reason'), [
+    ({'right': FRAME.right_rect_gt[:, :150]}, 'size_mismatch'),
+    ({'right': np.dstack([FRAME.right_rect_gt] * 3), 'right_encoding': 'rgb8'},
+     'encoding_mismatch'),
+    ({'left': FRAME.left_rect_gt.astype(np.float32), 'left_encoding': '32FC1',
+      'right': FRAME.right_rect_gt.astype(np.float32), 'right_encoding': '32FC1'},
+     'unsupported_encoding'),
+    ({(1, 'k'): [0.0] * 9}, 'uncalibrated'),
+    ({(3, 'p'): [100.0, 0, 80, 5.0, 0, 100, 60, 0, 0, 0, 1, 0]}, 'bad_calibration'),
+    ({(1, 'width'): 320, (3, 'width'): 320}, 'camera_info_mismatch'),
+    ({(0, 'step'): 10}, 'malformed_image'),
+])
+def test_bad_input_is_a_counted_drop(node: Any, changes: dict[Any, Any], reason: str) -> None:
+    node.on_frame(*_inputs(changes))
+    assert node.outbox == {}
+    assert node.drops == {reason: 1}
+    node.on_frame(*_inputs())
+    assert '/disparity' in node.outbox
+
+
+def test_range_wider_than_the_image(context: Context) -> None:
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=200)])
+    node.sink = lambda topic, msg: None
+    try:
+        node.on_frame(*_inputs())
+        assert node.drops == {'range_too_wide': 1}
+    finally:
+        node.destroy_node()
+
+
+def test_missing_camera_info_is_counted(node: Any) -> None:
+    callbacks = [spec.callback for spec in node.inputs]
+    for i in range(7):  # images only: sets never complete, the queue (5) overflows
+        left, _, right, _ = _inputs()
+        for msg in (left, right):
+            msg.header.stamp.sec = i
+        callbacks[0](left)
+        callbacks[2](right)
+    assert node.outbox == {}
+    assert node.drops['sync_queue_full'] >= 2
+
+
+def _set(peer: Any, executor: Any, **values: Any) -> Any:
+    client = peer.create_client(SetParameters, '/sgm_stereo/set_parameters')
+    assert client.wait_for_service(timeout_sec=30)
+    request = SetParameters.Request()
+    request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+    future = client.call_async(request)
+    executor.spin_until_future_complete(future, timeout_sec=30)
+    return future.result().results
+
+
+def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
+                                                            context: Context) -> None:
+    peer = rclpy.create_node('tuner', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(peer)
+    try:
+        node.on_frame(*_inputs())
+        before = read_disparity(node.outbox['/disparity']).disparity.copy()
+        (result,) = _set(peer, executor, P2=900.0)
+        assert result.successful, result.reason
+        node.on_frame(*_inputs())
+        after = read_disparity(node.outbox['/disparity']).disparity
+        assert not np.array_equal(before, after, equal_nan=True)
+        expected = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                                   FRAME.right_rect_gt)
+        np.testing.assert_array_equal(after, expected.disparity)
+        (rejected,) = _set(peer, executor, P1=1000.0)
+        assert not rejected.successful
+        assert 'P2 (900.0) must be >= P1 (1000.0)' in rejected.reason
+        (rejected,) = _set(peer, executor, paths=6)
+        assert not rejected.successful
+        assert 'must be 4, 8 or 16' in rejected.reason
+        (accepted,) = _set(peer, executor, disparity_range=50)  # any range for census_sgm
+        assert accepted.successful
+        (rejected,) = _set(peer, executor, backend='opencv')
+        assert not rejected.successful
+        assert 'disparity_range (50) must be a multiple of 16 with the opencv' in rejected.reason
+        assert node.params.values['P2'] == 900.0
+        assert node.params.values['backend'] == 'census_sgm'
+        results = _set(peer, executor, disparity_range=64, uniqueness_ratio=5.0)
+        assert all(r.successful for r in results)
+        node.on_frame(*_inputs())
+        assert node.outbox['/disparity'].max_disparity == 63.0
+    finally:
+        executor.shutdown()
+        peer.destroy_node()
+
+
+def test_opencv_backend_matches_stereosgbm(context: Context) -> None:
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('backend', value='opencv'), Parameter('disparity_range', value=48)])
+    outbox: dict[str, Any] = {}
+    node.sink = lambda topic, msg: outbox.__setitem__(topic, msg)
+    try:
+        node.on_frame(*_inputs())
+        assert set(outbox) == {'/disparity'}
+        got = read_disparity(outbox['/disparity'])
+        expected = opencv_sgbm(FRAME.left_rect_gt, FRAME.right_rect_gt,
+                               opencv_settings(node.params.values), disparity_range=48)
+        np.testing.assert_array_equal(got.disparity, expected)
+        assert got.delta_d == pytest.approx(1 / 16)
+    finally:
+        node.destroy_node()
