@@ -18,17 +18,23 @@ from depth_nodes.core.rectify import interpolation_flag
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 
 
-def median_ms(fns: dict[str, Callable[[], Any]], repeats: int) -> dict[str, float]:
+def median_ms(fns: dict[str, Callable[[], Any]], repeats: int,
+              settle: float = 0.0) -> dict[str, float]:
     """Median wall time in ms of each function, over ``repeats`` interleaved rounds.
 
     Every round calls each function once, so a slow spell of the machine affects all of
     them alike and their ratios stay meaningful. One untimed warm-up round comes first.
+    ``settle`` seconds of sleep precede each timed call: OpenCV's worker threads keep
+    spinning for a moment after a call returns and would otherwise slow down whatever
+    runs next on this 2-core machine.
     """
     for fn in fns.values():
         fn()
     times: dict[str, list[float]] = {name: [] for name in fns}
     for _ in range(repeats):
         for name, fn in fns.items():
+            if settle:
+                time.sleep(settle)
             start = time.perf_counter()
             fn()
             times[name].append(time.perf_counter() - start)
@@ -113,3 +119,124 @@ def bench_rectify(*, width: int = 640, height: int = 480, repeats: int = 200,
         rclpy.shutdown(context=context)
     return RectifyBench(width, height, 'rgb8', interpolation, repeats, cv2.getNumThreads(),
                         first_ms, ms['node'], ms['remap'], ms['messages'], ms['undistort'])
+
+
+@dataclass
+class SgmBench:
+    """Per-frame time of the census SGM matcher beside OpenCV's StereoSGBM."""
+
+    width: int
+    height: int
+    disparities: int
+    paths: int
+    repeats: int
+    threads: int
+    ours_ms: float
+    hh_ms: float
+    sgbm_ms: float
+    workspace_mb: float
+    peak_rss_mb: float
+    cold_start: dict[str, float]
+
+    def format(self) -> str:
+        """The printed report."""
+        updates = self.width * self.height * self.disparities * self.paths
+        lines = [
+            f'sgm: {self.width}x{self.height}, {self.disparities} disparities, {self.paths} '
+            f'paths, {self.threads} threads (numba and OpenCV), median of {self.repeats} '
+            'interleaved rounds on the bundled stereo_vga pair',
+            f'  census SGM (this package)   {self.ours_ms:8.1f} ms   '
+            f'{updates / self.ours_ms / 1e6:5.2f} G cell-path updates/s',
+            f'  OpenCV MODE_HH (8 paths)    {self.hh_ms:8.1f} ms   '
+            f'ours / MODE_HH   = {self.ours_ms / self.hh_ms:5.2f}',
+            f'  OpenCV MODE_SGBM (5 paths)  {self.sgbm_ms:8.1f} ms   '
+            f'ours / MODE_SGBM = {self.ours_ms / self.sgbm_ms:5.2f}',
+            f'  matcher buffers {self.workspace_mb:.0f} MB (reused every frame); '
+            f'process peak RSS {self.peak_rss_mb:.0f} MB',
+        ]
+        if self.cold_start:
+            lines.append(
+                f'  cold start, warm numba cache: import {self.cold_start["import_s"]:.2f} s, '
+                f'first frame {self.cold_start["first_frame_s"] * 1e3:.0f} ms, second '
+                f'{self.cold_start["second_frame_s"] * 1e3:.0f} ms')
+        return '\n'.join(lines)
+
+
+def _bundled_pair() -> tuple[Any, Any]:
+    """The first rectified pair of bags/stereo_vga (rectified with its CameraInfo)."""
+    from pathlib import Path
+
+    from depth_nodes.core.rectify import rectify_image
+    from depth_nodes.ros.camera_info import camera_info_to_model
+    from depth_nodes.ros.image import image_to_array
+    from depth_nodes.tools.bagio import BagReader
+
+    bag = Path(__file__).resolve().parents[2] / 'bags' / 'stereo_vga'
+    first: dict[str, Any] = {}
+    with BagReader(bag) as reader:
+        for m in reader.messages([f'/stereo/{s}/{k}' for s in ('left', 'right')
+                                  for k in ('image_raw', 'camera_info')]):
+            first.setdefault(m.topic, m.deserialize())
+    return tuple(  # type: ignore[return-value]
+        rectify_image(image_to_array(first[f'/stereo/{s}/image_raw']),
+                      camera_info_to_model(first[f'/stereo/{s}/camera_info']))
+        for s in ('left', 'right'))
+
+
+_COLD_START = '''
+import json, sys, time
+start = time.perf_counter()
+import numpy as np
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
+imported = time.perf_counter()
+rng = np.random.default_rng(0)
+left = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+right = np.roll(left, -20, axis=1)
+matcher = SgmMatcher(SgmParams(disparity_range=128))
+t0 = time.perf_counter(); matcher.match(left, right); t1 = time.perf_counter()
+matcher.match(left, right); t2 = time.perf_counter()
+print(json.dumps({"import_s": imported - start, "first_frame_s": t1 - t0,
+                  "second_frame_s": t2 - t1}))
+'''
+
+
+def cold_start_sgm() -> dict[str, float]:
+    """Import and first-frame times of a fresh interpreter (numba cache already warm)."""
+    import json
+    import subprocess
+    import sys
+
+    for _ in range(2):  # the first run fills the cache if it is empty; the second is timed
+        out = subprocess.run([sys.executable, '-c', _COLD_START], capture_output=True,
+                             text=True, check=True).stdout
+    return {k: float(v) for k, v in json.loads(out.strip().splitlines()[-1]).items()}
+
+
+def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
+              cold_start: bool = True) -> SgmBench:
+    """Time census SGM against OpenCV MODE_HH and MODE_SGBM on the same 640x480 pair."""
+    import dataclasses
+    import resource
+
+    import numba
+
+    from depth_nodes.core.baseline import TUNED_HH, TUNED_SGBM, opencv_sgbm
+    from depth_nodes.core.sgm import SgmMatcher, SgmParams
+
+    left, right = _bundled_pair()
+    h, w = left.shape
+    matcher = SgmMatcher(SgmParams(disparity_range=disparities, paths=paths))
+    hh = dataclasses.replace(TUNED_HH)
+    sgbm = dataclasses.replace(TUNED_SGBM)
+    ms = median_ms({
+        'ours': lambda: matcher.match(left, right),
+        'hh': lambda: opencv_sgbm(left, right, hh, disparity_range=disparities),
+        'sgbm': lambda: opencv_sgbm(left, right, sgbm, disparity_range=disparities),
+    }, repeats, settle=0.05)
+    workspace = sum(getattr(b, 'nbytes', 0) + sum(getattr(x, 'nbytes', 0) for x in b)
+                    if isinstance(b, tuple) else getattr(b, 'nbytes', 0)
+                    for b in matcher._buf.values())
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return SgmBench(w, h, disparities, paths, repeats, numba.get_num_threads(), ms['ours'],
+                    ms['hh'], ms['sgbm'], workspace / 1e6, peak,
+                    cold_start_sgm() if cold_start else {})

@@ -88,12 +88,20 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
-    from depth_nodes.tools.bench import bench_rectify
+    import cv2
 
+    from depth_nodes.tools.bench import bench_rectify, bench_sgm
+
+    cv2.setNumThreads(args.threads)
+    import numba
+
+    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     if args.stage == 'rectify':
-        result = bench_rectify(width=args.width, height=args.height, repeats=args.frames,
-                               interpolation=args.interpolation)
-        print(result.format())
+        print(bench_rectify(width=args.width, height=args.height, repeats=args.frames or 200,
+                            interpolation=args.interpolation).format())
+    elif args.stage == 'sgm':
+        print(bench_sgm(repeats=args.frames or 10, disparities=args.disparities,
+                        paths=args.paths).format())
     return 0
 
 
@@ -146,10 +154,14 @@ def build_parser() -> argparse.ArgumentParser:
     ev.set_defaults(func=_cmd_eval)
 
     bench = sub.add_parser('bench', help='speed figures beside OpenCV, measured in one run')
-    bench.add_argument('stage', choices=['rectify'], help='what to time')
-    bench.add_argument('--width', type=int, default=640)
-    bench.add_argument('--height', type=int, default=480)
-    bench.add_argument('--frames', type=int, default=200, help='timed repetitions (median)')
+    bench.add_argument('stage', choices=['rectify', 'sgm'], help='what to time')
+    bench.add_argument('--width', type=int, default=640, help='rectify: frame width')
+    bench.add_argument('--height', type=int, default=480, help='rectify: frame height')
+    bench.add_argument('--frames', type=int, help='timed repetitions (median); default 200 '
+                       'for rectify, 10 for sgm')
+    bench.add_argument('--threads', type=int, default=2, help='OpenCV and numba threads')
+    bench.add_argument('--disparities', type=int, default=128, help='sgm: disparity range')
+    bench.add_argument('--paths', type=int, default=8, help='sgm: 4, 8 or 16')
     bench.add_argument('--interpolation', default='linear',
                        help='rectify: nearest, linear, cubic, area or lanczos4')
     bench.set_defaults(func=_cmd_bench)

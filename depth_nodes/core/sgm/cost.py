@@ -120,25 +120,33 @@ def _census_costs(cl: np.uint64, census_r: U64, xr0: int, k_lo: int, k_hi: int, 
 
 
 @njit(cache=True, nogil=True, inline='always')
-def _intensity_costs(il: float, lo_l: float, hi_l: float, right: NDArray[np.float32],
-                     lo_r: NDArray[np.float32], hi_r: NDArray[np.float32], xr0: int,
-                     k_lo: int, k_hi: int, weight: int, use_bt: bool, truncation: float,
-                     add: bool, out: U8) -> None:
-    """Add (or write) weight * min(AD or BT, truncation) for k in [k_lo, k_hi]."""
+def _intensity_costs(il: np.float32, lo_l: np.float32, hi_l: np.float32,
+                     right: NDArray[np.float32], lo_r: NDArray[np.float32],
+                     hi_r: NDArray[np.float32], xr0: int, k_lo: int, k_hi: int, weight: int,
+                     use_bt: bool, truncation: int, add: bool, out: U8) -> None:
+    """Add (or write) weight * round(min(AD or BT, truncation)) for k in [k_lo, k_hi].
+
+    float32 throughout (a float64 constant would halve the vector width).
+    """
+    zero = np.float32(0.0)
+    half = np.float32(0.5)
+    cap = np.float32(truncation)
+    top = np.float32(254.0)
+    w = np.float32(weight)
     for k in range(k_lo, k_hi + 1):
         xr = np.uint64(xr0 - k)  # >= 0; unsigned, so no negative-index wraparound check
+        i = np.uint64(k)
         ir = right[xr]
         if use_bt:
-            d_left = max(0.0, max(il - hi_r[xr], lo_r[xr] - il))
-            d_right = max(0.0, max(ir - hi_l, lo_l - ir))
+            d_left = max(zero, max(il - hi_r[xr], lo_r[xr] - il))
+            d_right = max(zero, max(ir - hi_l, lo_l - ir))
             diff = min(d_left, d_right)
         else:
             diff = abs(il - ir)
-        value = weight * int(min(diff, truncation) + 0.5)
-        i = np.uint64(k)
+        value = w * np.floor(min(diff, cap) + half)
         if add:
-            value += int(out[i])
-        out[i] = np.uint8(min(value, 254))
+            value += np.float32(out[i])
+        out[i] = np.uint8(min(value, top))
 
 
 @njit(parallel=True, cache=True, nogil=True)
@@ -166,7 +174,7 @@ def _cost_kernel(census_l: U64, census_r: U64, left: NDArray[np.float32],
             if intensity_weight:
                 _intensity_costs(left[y, x], lo_l[y, x], hi_l[y, x], right[y], lo_r[y],
                                  hi_r[y], xr0, k_lo, k_hi, intensity_weight, use_bt,
-                                 float(truncation), census_weight > 0, cell)
+                                 truncation, census_weight > 0, cell)
 
 
 def cost_volume(left: NDArray[np.generic], right: NDArray[np.generic], *,
