@@ -16,6 +16,7 @@ PACKAGE = 'depth_nodes'
 NODE_SCRIPTS = [
     'rectify = depth_nodes.nodes.rectify:main',
     'sgm_stereo = depth_nodes.nodes.sgm_stereo:main',
+    'structured_light = depth_nodes.nodes.structured_light:main',
 ]
 
 ROS_WHEELS = [
@@ -40,7 +41,8 @@ setup(
     install_requires=[
         'setuptools',
         'numpy',
-        'opencv-python-headless',
+        # the contrib build (a superset of opencv-python-headless) for cv2.structured_light
+        'opencv-contrib-python-headless',
         'numba',
         'rosbags',
         'pyyaml',

@@ -14,18 +14,37 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from depth_nodes.errors import DepthNodesError
+from depth_nodes.errors import ConfigError, DepthNodesError
 
 EXIT_ERROR = 1
+#: The bags committed with the package (a source checkout).
+BUNDLED_BAGS = Path(__file__).resolve().parents[2] / 'bags'
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
+    from depth_nodes.tools import structured_light_bag as sl
     from depth_nodes.tools.generate import PRESETS, preset, write_stereo_bag
 
-    names = list(PRESETS) if args.preset == 'all' else [args.preset]
+    known = [*PRESETS, *sl.PRESETS]
+    if args.preset != 'all' and args.preset not in known:
+        raise ConfigError(f'unknown preset {args.preset!r} (presets: {", ".join(known)}, all)')
+    names = known if args.preset == 'all' else [args.preset]
     out = Path(args.out)
     for name in names:
         path = out / name if args.preset == 'all' else out
+        if name in sl.PRESETS:
+            sl_config = sl.PRESETS[name]
+            if args.seed is not None:
+                sl_config = dataclasses.replace(
+                    sl_config, sim=dataclasses.replace(sl_config.sim, seed=args.seed))
+            if args.frames is not None:
+                sl_config = dataclasses.replace(sl_config, sequences=args.frames)
+            count = sl.write_structured_light_bag(path, sl_config, overwrite=args.force)
+            size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
+            print(f'{path}: {name}, {sl_config.sim.width}x{sl_config.sim.height}, '
+                  f'{sl_config.sequences} sequence(s) of {sl_config.pattern_set.count} frames '
+                  f'+ {sl_config.speckle_frames} speckle, {count} messages, {size:.1f} MB')
+            continue
         config = preset(name)
         if args.seed is not None:
             config = dataclasses.replace(config, seed=args.seed)
@@ -86,6 +105,13 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_eval_sl(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.structured_light_eval import evaluate_structured_light_bag
+
+    print(evaluate_structured_light_bag(args.bag, opencv=not args.no_opencv).format())
+    return 0
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
     import cv2
@@ -102,6 +128,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     elif args.stage == 'sgm':
         print(bench_sgm(repeats=args.frames or 10, disparities=args.disparities,
                         paths=args.paths).format())
+    elif args.stage == 'structured_light':
+        from depth_nodes.tools.structured_light_eval import bench_structured_light
+
+        bag = args.bag or str(BUNDLED_BAGS / 'structured_light_vga')
+        print(bench_structured_light(bag, repeats=args.frames or 20).format())
     return 0
 
 
@@ -113,7 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     gen = sub.add_parser('generate', help='write synthetic stereo bags with ground truth')
     gen.add_argument('out', help='bag folder to create (a parent folder with --preset all)')
     gen.add_argument('--preset', default='stereo_vga',
-                     help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye or all')
+                     help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye, '
+                     'structured_light_vga or all')
     gen.add_argument('--seed', type=int, help='override the preset seed')
     gen.add_argument('--frames', type=int, help='override the number of frames')
     gen.add_argument('--force', action='store_true', help='replace existing bags')
@@ -153,8 +185,17 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
     ev.set_defaults(func=_cmd_eval)
 
+    evsl = sub.add_parser('eval-sl',
+                          help='structured-light figures beside OpenCV GrayCodePattern')
+    evsl.add_argument('bag', help='a bag written by generate --preset structured_light_vga')
+    evsl.add_argument('--no-opencv', action='store_true',
+                      help='skip OpenCV (its per-pixel API is slow)')
+    evsl.set_defaults(func=_cmd_eval_sl)
+
     bench = sub.add_parser('bench', help='speed figures beside OpenCV, measured in one run')
-    bench.add_argument('stage', choices=['rectify', 'sgm'], help='what to time')
+    bench.add_argument('stage', choices=['rectify', 'sgm', 'structured_light'],
+                       help='what to time')
+    bench.add_argument('--bag', help='structured_light: the bag to time (default: bundled)')
     bench.add_argument('--width', type=int, default=640, help='rectify: frame width')
     bench.add_argument('--height', type=int, default=480, help='rectify: frame height')
     bench.add_argument('--frames', type=int, help='timed repetitions (median); default 200 '

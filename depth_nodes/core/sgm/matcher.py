@@ -162,7 +162,7 @@ class SgmMatcher:
         p = self.params
         n = p.disparity_range
         dirs = VERTICAL_DIRECTIONS[p.paths]
-        threads = numba.config.NUMBA_NUM_THREADS
+        threads = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
         shape = (h, w, n, p.paths, threads)
         if shape != self._shape:
             lbuf, mbuf = new_line_buffers(len(dirs), w, n)

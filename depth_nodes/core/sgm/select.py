@@ -131,7 +131,7 @@ def horizontal_and_select(cost: U8, image: F32, partial: U16, p1: int, p2: int,
     """
     h, w, n = cost.shape
     for y in prange(h):
-        row = rows[numba.get_thread_id()]
+        row = rows[numba.get_thread_id()]  # type: ignore[attr-defined]
         line_a, line_b = new_line(n), new_line(n)
         total = np.empty(n, np.uint16)
         best = 0

@@ -1,0 +1,56 @@
+"""Structured light: pattern sets, decoding, triangulation and single-shot speckle depth.
+
+Arrays only (numpy / OpenCV), no ROS: the public Python API of the structured-light node.
+"""
+
+from depth_nodes.core.structured_light.decode import DecodeResult, decode_sequence, wrapped_phase
+from depth_nodes.core.structured_light.patterns import (
+    AXES,
+    MODES,
+    Frame,
+    PatternSet,
+    generate_patterns,
+    gray_code,
+    gray_to_binary,
+    speckle_pattern,
+)
+from depth_nodes.core.structured_light.speckle import (
+    match_rows,
+    match_rows_reference,
+    shift_range,
+    shift_to_depth,
+    speckle_depth,
+)
+from depth_nodes.core.structured_light.triangulate import (
+    ProjectorGeometry,
+    camera_rays,
+    depth_to_points,
+    pixel_rays,
+    triangulate_columns,
+    triangulate_pixels,
+)
+
+__all__ = [
+    'AXES',
+    'MODES',
+    'DecodeResult',
+    'Frame',
+    'PatternSet',
+    'ProjectorGeometry',
+    'camera_rays',
+    'decode_sequence',
+    'depth_to_points',
+    'generate_patterns',
+    'gray_code',
+    'gray_to_binary',
+    'match_rows',
+    'match_rows_reference',
+    'pixel_rays',
+    'shift_range',
+    'shift_to_depth',
+    'speckle_depth',
+    'speckle_pattern',
+    'triangulate_columns',
+    'triangulate_pixels',
+    'wrapped_phase',
+]

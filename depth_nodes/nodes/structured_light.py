@@ -1,0 +1,352 @@
+"""Structured-light node: a camera's pattern sequence (or one speckle image) -> depth.
+
+Subscribes ``image`` (mono8/mono16/colour, converted to grey), ``camera_info`` (matched by
+exact stamp), ``pattern`` (std_msgs/Header: the frame's position in its sequence, see
+:mod:`depth_nodes.core.structured_light.framing`; not needed in speckle mode) and
+``projector/camera_info`` (the projector calibration, ``P = K_p [R | t]``; the latest one
+is used). Publishes, once per complete sequence (with the header of its first frame) or
+per speckle image: ``depth`` (32FC1 metres, NaN unknown; REP 118), ``points2`` (organised
+PointCloud2 in the camera frame) and ``confidence`` (32FC1 in [0, 1]).
+
+Parameters (all but ``queue_size`` changeable at runtime; a sequence is decoded with the
+values current when its last frame arrives; changing ``mode`` or the pattern layout drops
+a sequence in progress): ``mode`` (gray, phase, opencv, speckle), ``axes``,
+``phase_steps``, ``phase_period``, ``shadow_threshold``, ``min_modulation``, ``depth_min``,
+``depth_max``, ``speckle_reference`` (image file), ``speckle_reference_depth``,
+``speckle_window``, ``speckle_min_score``, ``avoid_point_cloud_padding``, ``queue_size``.
+
+A frame or sequence without output is counted in ``drops`` and logged, by reason: the
+framing reasons of :mod:`~depth_nodes.core.structured_light.framing`, ``bad_pattern_tag``,
+``pattern_tag_missing``, ``pattern_tag_unmatched``, ``no_projector_info``,
+``bad_calibration``, ``bad_pattern_set``, ``unsupported_encoding``, ``malformed_image``,
+``size_mismatch``, ``speckle_reference``, ``sync_*``.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import OrderedDict
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Header
+
+from depth_nodes.core.structured_light import (
+    AXES,
+    MODES,
+    PatternSet,
+    ProjectorGeometry,
+    camera_rays,
+    depth_to_points,
+    speckle_depth,
+)
+from depth_nodes.core.structured_light.framing import SequenceAssembler, parse_tag
+from depth_nodes.core.structured_light.reconstruct import reconstruct
+from depth_nodes.errors import CalibrationError, ConfigError, MessageError
+from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
+from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.pointcloud import build_pointcloud
+from depth_nodes.ros.sync import stamp_to_ns
+
+
+def _one_of(options: tuple[str, ...]) -> Any:
+    return lambda v: None if v in options else f'must be one of {", ".join(options)}'
+
+
+def _odd(value: int) -> str | None:
+    return None if value % 2 == 1 else 'must be odd'
+
+
+def _cross_check(values: Mapping[str, Any]) -> str | None:
+    if values['depth_min'] >= values['depth_max']:
+        return (f'depth_min ({values["depth_min"]}) must be smaller than depth_max '
+                f'({values["depth_max"]})')
+    return None
+
+
+PARAMETERS = [
+    ParamSpec('mode', 'phase', 'Pattern set: gray, phase (Gray code + N-step phase shift), '
+              'opencv (cv2.structured_light.GrayCodePattern order + black, white) or speckle',
+              check=_one_of(MODES)),
+    ParamSpec('axes', 'columns', 'Coded projector axes: columns (ray-plane) or both (ray-ray)',
+              check=_one_of(AXES)),
+    ParamSpec('phase_steps', 4, 'Phase steps N of the phase mode', min_value=3,
+              max_value=64),
+    ParamSpec('phase_period', 16.0, 'Phase period in projector pixels', min_value=2.0,
+              max_value=4096.0),
+    ParamSpec('shadow_threshold', 12.0, 'Minimum white - black (grey levels) of a lit pixel',
+              min_value=0.0, max_value=65535.0),
+    ParamSpec('min_modulation', 4.0, 'Minimum phase amplitude (grey levels); scale of the '
+              'confidence', min_value=0.0, max_value=65535.0),
+    ParamSpec('depth_min', 0.2, 'Nearest depth kept (m)', min_value=0.01, max_value=1000.0),
+    ParamSpec('depth_max', 5.0, 'Farthest depth kept (m)', min_value=0.01, max_value=1000.0),
+    ParamSpec('speckle_reference', '', 'Speckle mode: image file (PNG, 8/16-bit grey) of '
+              'the dot pattern on a plane at speckle_reference_depth'),
+    ParamSpec('speckle_reference_depth', 1.0, 'Depth of the speckle reference plane (m)',
+              min_value=0.01, max_value=1000.0),
+    ParamSpec('speckle_window', 11, 'Speckle correlation window side (odd)', min_value=3,
+              max_value=31, check=_odd),
+    ParamSpec('speckle_min_score', 0.5, 'Minimum ZNCC of a speckle match', min_value=-1.0,
+              max_value=1.0),
+    ParamSpec('avoid_point_cloud_padding', False, 'Pack points2 to 12 bytes per point'),
+    ParamSpec('queue_size', 5, 'Frames held while their camera_info or pattern tag is '
+              'missing', min_value=1, max_value=1000, read_only=True),
+]
+
+
+class StructuredLightNode(DepthNode):
+    """Decodes Gray-code / phase-shift sequences or speckle images into depth."""
+
+    def __init__(self, node_name: str = 'structured_light', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.params = NodeParameters(self, PARAMETERS, _cross_check)
+        self.queue_size = int(self.params.values['queue_size'])
+        self.assembler = SequenceAssembler()
+        self.projector_info: CameraInfo | None = None
+        self._tags: OrderedDict[int, Header] = OrderedDict()
+        self._waiting: OrderedDict[int, tuple[Image, CameraInfo]] = OrderedDict()
+        self._layout: tuple[Any, ...] | None = None
+        self._geometry_key: tuple[Any, ...] | None = None
+        self._geometry: ProjectorGeometry
+        self._rays: NDArray[np.float64]
+        self._reference_key: tuple[Any, ...] | None = None
+        self._reference: NDArray[np.float32]
+        self.pub_depth = self.add_output(Image, 'depth')
+        self.pub_points = self.add_output(PointCloud2, 'points2')
+        self.pub_confidence = self.add_output(Image, 'confidence')
+        self.add_synced_inputs([(Image, 'image'), (CameraInfo, 'camera_info')], self.on_frame,
+                               queue_size=self.queue_size)
+        self.add_input(Header, 'pattern', self.on_tag)
+        self.add_input(CameraInfo, 'projector/camera_info', self.on_projector_info)
+
+    # ---------------------------------------------------------------- inputs
+
+    def on_projector_info(self, msg: CameraInfo) -> None:
+        """Keep the latest projector calibration."""
+        self.projector_info = msg
+
+    def on_tag(self, msg: Header) -> None:
+        """A pattern tag: release its waiting frame, or keep it for the frame to come."""
+        stamp = stamp_to_ns(msg.stamp)
+        if stamp in self._waiting:
+            for older in [s for s in self._waiting if s < stamp]:
+                self._waiting.pop(older)
+                self.drop('pattern_tag_missing', f'frame at stamp {older} ns never got its '
+                          f'pattern tag (a later frame did)')
+            self._sequence_frame(*self._waiting.pop(stamp), msg)
+            return
+        self._tags[stamp] = msg
+        while len(self._tags) > 2 * self.queue_size:
+            old, tag = self._tags.popitem(last=False)
+            self.drop('pattern_tag_unmatched', f'pattern tag {tag.frame_id!r} at stamp {old} '
+                      f'ns never got its image')
+
+    def on_frame(self, image: Image, info: CameraInfo) -> None:
+        """An image with its camera_info: speckle now, or one frame of a sequence."""
+        if self.params.values['mode'] == 'speckle':
+            self._speckle(image, info)
+            return
+        stamp = stamp_to_ns(image.header.stamp)
+        tag = self._tags.pop(stamp, None)
+        if tag is not None:
+            self._sequence_frame(image, info, tag)
+            return
+        self._waiting[stamp] = (image, info)
+        while len(self._waiting) > self.queue_size:
+            old, _ = self._waiting.popitem(last=False)
+            self.drop('pattern_tag_missing', f'frame at stamp {old} ns has no pattern tag '
+                      f'(is the projector driver publishing "pattern"?)')
+
+    # ---------------------------------------------------------------- sequences
+
+    def _pattern_set(self, values: Mapping[str, Any]) -> PatternSet | None:
+        proj = self.projector_info
+        if proj is None:
+            self.drop('no_projector_info', 'no projector/camera_info received yet')
+            return None
+        try:
+            pattern_set = PatternSet(values['mode'], int(proj.width), int(proj.height),
+                                     values['axes'], values['phase_steps'],
+                                     values['phase_period'])
+        except ConfigError as exc:
+            self.drop('bad_pattern_set', str(exc))
+            return None
+        layout = (pattern_set,)
+        if layout != self._layout:
+            if self._layout is not None and self.assembler.pending:
+                self.drop('sequence_incomplete', 'pattern layout changed (parameters or '
+                          'projector size) in the middle of a sequence')
+                self.assembler.reset()
+            self._layout = layout
+        return pattern_set
+
+    def _sequence_frame(self, image: Image, info: CameraInfo, tag_msg: Header) -> None:
+        values = self.params.values
+        try:
+            tag = parse_tag(tag_msg.frame_id)
+        except MessageError as exc:
+            self.drop('bad_pattern_tag', str(exc))
+            return
+        # Without projector info yet (it may arrive just after the first frame) the tag's
+        # count is taken on trust and checked when the sequence is complete.
+        pattern_set = self._pattern_set(values) if self.projector_info is not None else None
+        if pattern_set is None and self.projector_info is not None:
+            return
+        grey = self._grey(image)
+        if grey is None:
+            return
+        expected = pattern_set.count if pattern_set is not None else tag.count
+        frames, drops = self.assembler.add(tag, (grey, image.header, info), expected)
+        for d in drops:
+            self.drop(d.reason, d.detail)
+        if frames is None:
+            return
+        pattern_set = pattern_set or self._pattern_set(values)
+        if pattern_set is None:
+            return
+        if pattern_set.count != len(frames):
+            self.drop('pattern_count_mismatch', f'sequence {tag.sequence} has {len(frames)} '
+                      f'frames, the configured pattern set needs {pattern_set.count}')
+            return
+        self._decode(frames, pattern_set, values)
+
+    def _grey(self, image: Image) -> NDArray[Any] | None:
+        if image.encoding not in ENCODINGS or image.encoding == '32FC1':
+            self.drop('unsupported_encoding', f'image encoding {image.encoding!r} is not '
+                      'supported (mono8, mono16 or colour)')
+            return None
+        try:
+            return to_gray(image_to_array(image), image.encoding)
+        except MessageError as exc:
+            self.drop('malformed_image', str(exc))
+            return None
+
+    def _geometry_for(self, info: CameraInfo) -> ProjectorGeometry | None:
+        proj = self.projector_info
+        if proj is None:
+            self.drop('no_projector_info', 'no projector/camera_info received yet')
+            return None
+        key = tuple(_info_key(m) for m in (info, proj))
+        if key != self._geometry_key:
+            try:
+                camera = camera_info_to_model(info).binned()
+                projector = camera_info_to_model(proj)
+                self._geometry = ProjectorGeometry.from_models(camera, projector)
+            except CalibrationError as exc:
+                self.drop('bad_calibration', str(exc))
+                return None
+            self._rays = camera_rays(camera)
+            self._geometry_key = key
+        return self._geometry
+
+    def _decode(self, frames: list[tuple[Any, Header, CameraInfo]], pattern_set: PatternSet,
+                values: Mapping[str, Any]) -> None:
+        first, header, info = frames[0]
+        if any(f[0].shape != first.shape for f in frames):
+            self.drop('size_mismatch', 'images of one sequence differ in size')
+            return
+        geometry = self._geometry_for(info)
+        if geometry is None:
+            return
+        cam = geometry.camera
+        if first.shape != (cam.height, cam.width):
+            self.drop('size_mismatch', f'image is {first.shape[1]}x{first.shape[0]} but '
+                      f'camera_info describes {cam.width}x{cam.height}')
+            return
+        try:
+            result = reconstruct(np.stack([f[0] for f in frames]), pattern_set, geometry,
+                                 rays=self._rays, shadow_threshold=values['shadow_threshold'],
+                                 min_modulation=values['min_modulation'],
+                                 depth_min=values['depth_min'], depth_max=values['depth_max'])
+        except (ConfigError, CalibrationError) as exc:
+            self.drop('bad_calibration', str(exc))
+            return
+        self._publish(result.depth, result.confidence, header, values)
+
+    # ---------------------------------------------------------------- speckle
+
+    def _load_reference(self, path: str, shape: tuple[int, ...]) -> NDArray[np.float32] | None:
+        if not path:
+            self.drop('speckle_reference', 'speckle mode needs the speckle_reference '
+                      'parameter: an image file of the pattern on the reference plane')
+            return None
+        p = Path(path)
+        try:
+            key = (path, p.stat().st_mtime_ns)
+        except OSError as exc:
+            self.drop('speckle_reference', f'cannot read speckle_reference {path!r}: '
+                      f'{exc.strerror}')
+            return None
+        if key != self._reference_key:
+            ref = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            if ref is None or ref.ndim != 2:
+                self.drop('speckle_reference', f'speckle_reference {path!r} is not a '
+                          'one-channel image file OpenCV can read')
+                return None
+            self._reference = ref.astype(np.float32)
+            self._reference_key = key
+        if self._reference.shape != shape:
+            self.drop('speckle_reference', f'speckle_reference {path!r} is '
+                      f'{self._reference.shape[1]}x{self._reference.shape[0]}, images are '
+                      f'{shape[1]}x{shape[0]}')
+            return None
+        return self._reference
+
+    def _speckle(self, image: Image, info: CameraInfo) -> None:
+        values = self.params.values
+        grey = self._grey(image)
+        if grey is None:
+            return
+        geometry = self._geometry_for(info)
+        if geometry is None:
+            return
+        if grey.shape != (geometry.camera.height, geometry.camera.width):
+            self.drop('size_mismatch', f'image is {grey.shape[1]}x{grey.shape[0]} but '
+                      f'camera_info describes {geometry.camera.width}x'
+                      f'{geometry.camera.height}')
+            return
+        ref = self._load_reference(values['speckle_reference'], grey.shape)
+        if ref is None:
+            return
+        try:
+            depth, conf = speckle_depth(
+                grey, ref, focal=geometry.camera.K[0, 0], baseline=float(geometry.centre[0]),
+                reference_depth=values['speckle_reference_depth'],
+                depth_min=values['depth_min'], depth_max=values['depth_max'],
+                window=values['speckle_window'], min_score=values['speckle_min_score'])
+        except ConfigError as exc:
+            self.drop('bad_calibration', str(exc))
+            return
+        self._publish(depth, conf, image.header, values)
+
+    # ---------------------------------------------------------------- output
+
+    def _publish(self, depth: NDArray[np.float32], confidence: NDArray[np.float32],
+                 header: Header, values: Mapping[str, Any]) -> None:
+        self.pub_depth.publish(array_to_image(depth, '32FC1', header))
+        points = depth_to_points(self._rays, depth)
+        self.pub_points.publish(build_pointcloud(
+            points, header, pad=not values['avoid_point_cloud_padding']))
+        self.pub_confidence.publish(array_to_image(confidence, '32FC1', header))
+
+
+def _info_key(msg: CameraInfo) -> tuple[Any, ...]:
+    return (msg.width, msg.height, msg.distortion_model, tuple(msg.k), tuple(msg.d),
+            tuple(msg.r), tuple(msg.p), msg.binning_x, msg.binning_y, msg.roi.x_offset,
+            msg.roi.y_offset, msg.roi.width, msg.roi.height)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console script ``structured_light`` (``ros2 run depth_nodes structured_light``)."""
+    sys.exit(run_node(StructuredLightNode, args))
+
+
+if __name__ == '__main__':
+    main()
