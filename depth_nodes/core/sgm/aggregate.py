@@ -14,7 +14,8 @@ rows, so a row is parallel across x. Each L row lives in a small ring buffer pad
 large sentinel at both disparity ends, so the inner loop over d has no branch. The
 horizontal directions are fused with the disparity selection in ``select.py``.
 
-P2 may adapt to the image: P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / scale)).
+P2 may adapt to the image: P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / scale)), with the
+intensity step truncated to an integer (exact for camera images), looked up in a table.
 """
 
 from __future__ import annotations
@@ -38,12 +39,26 @@ VERTICAL_DIRECTIONS = {
 }
 
 
-@njit(cache=True, nogil=True, inline='always')
-def adaptive_p2(p1: int, p2: int, scale: float, a: float, b: float) -> int:
-    """P2 for a step between intensities ``a`` and ``b`` (``scale`` 0: constant P2)."""
+def p2_table(p1: int, p2: int, scale: float, levels: int = 65536) -> NDArray[np.int64]:
+    """The adaptive P2 for every integer intensity step 0 .. levels - 1:
+    max(P1, int(P2 / (1 + step / scale))); empty when ``scale`` is 0 (constant P2).
+
+    A table turns a division per pixel and path into a lookup. Steps are truncated to
+    integers, which is exact for the integer images cameras deliver.
+    """
     if scale <= 0.0:
+        return np.zeros(0, np.int64)
+    steps = np.arange(levels, dtype=np.float64)
+    return np.maximum(p1, (p2 / (1.0 + steps / scale)).astype(np.int64))
+
+
+@njit(cache=True, nogil=True, inline='always')
+def table_p2(p2: int, table: NDArray[np.int64], a: float, b: float) -> int:
+    """P2 for a step between intensities ``a`` and ``b`` (constant when the table is empty)."""
+    if table.shape[0] == 0:
         return p2
-    return max(p1, int(p2 / (1.0 + abs(a - b) / scale)))
+    step = min(int(abs(a - b)), table.shape[0] - 1)
+    return int(table[step])
 
 
 @njit(cache=True, nogil=True, inline='always')
@@ -58,11 +73,9 @@ def path_start(cost: U8, cur: U16) -> int:
 
 
 @njit(cache=True, nogil=True, inline='always')
-def store_path(cur: U16, line: U16, out: U16, accumulate: bool) -> None:
-    """line[1:-1] = cur[1:-1] (the ring buffer) and out (+)= cur[1:-1] (the path sum)."""
+def store_path(cur: U16, out: U16, accumulate: bool) -> None:
+    """out (+)= cur[1:-1]: add a path's L into the sum over paths."""
     n = out.shape[0]
-    for d in range(1, n + 1):
-        line[d] = cur[d]
     if accumulate:
         for d in range(n):
             out[d] += cur[d + 1]
@@ -103,10 +116,20 @@ def path_step(cost: U8, prev: U16, mprev: int, p1: int, p2: int, cur: U16) -> in
     return int(best)
 
 
+@njit(cache=True, nogil=True, inline='always')
+def _ring(lb0: U16, lb1: U16, lb2: U16, index: int) -> U16:
+    if index == 0:
+        return lb0
+    if index == 1:
+        return lb1
+    return lb2
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def sweep_rows(cost: U8, image: NDArray[np.float32], dxs: NDArray[np.int64],
-               dys: NDArray[np.int64], downward: bool, p1: int, p2: int, p2_scale: float,
-               lbuf: U16, mbuf: U16, total: U16, accumulate: bool, chunks: int) -> None:
+               dys: NDArray[np.int64], downward: bool, p1: int, p2: int,
+               p2_table: NDArray[np.int64], lb0: U16, lb1: U16, lb2: U16, mbuf: U16,
+               total: U16, accumulate: bool, chunks: int) -> None:
     """Aggregate the vertical/diagonal directions ``(dxs, dys)`` over all rows.
 
     Top to bottom when ``downward`` (the previous pixel of direction (dx, dy) is at
@@ -121,43 +144,50 @@ def sweep_rows(cost: U8, image: NDArray[np.float32], dxs: NDArray[np.int64],
         downward: Sweep direction.
         p1: Penalty of a 1-disparity change.
         p2: Penalty of a larger change.
-        p2_scale: Intensity scale of the adaptive P2 (0 disables it).
-        lbuf: (n_dirs, 3, W, D + 2) uint16 ring buffer; entries 0 and D + 1 = SENTINEL.
-        mbuf: (n_dirs, 3, W) uint16 ring buffer of min_d L.
+        p2_table: Adaptive P2 by integer intensity step (:func:`p2_table`); empty for a
+            constant P2.
+        lb0, lb1, lb2: The ring of L rows, three separate (n_dirs, W, D + 2) uint16 arrays
+            (row i lives in ring i % 3) with SENTINEL at entries 0 and D + 1. Separate
+            arrays let LLVM vectorise the recurrence in place (reading one array, writing
+            another) without a scratch buffer and a copy.
+        mbuf: (n_dirs, 3, W) uint16 ring of min_d L.
         total: (H, W, D) uint16 sum over paths.
         accumulate: Add to ``total`` instead of overwriting it.
         chunks: Pieces each row is split into for the threads (a few per thread).
     """
-    h, w, n = cost.shape
+    h, w = cost.shape[:2]
     ndir = dxs.shape[0]
     chunks = max(1, min(w, chunks))
     for i in range(h):
         y = i if downward else h - 1 - i
         ring = i % 3
+        cur_ring = _ring(lb0, lb1, lb2, ring)
         for c in prange(chunks):
-            cur = new_line(n)
             for x in range(c * w // chunks, (c + 1) * w // chunks):
                 out = total[y, x]
                 for j in range(ndir):
                     step = dys[j]
                     xp = x - dxs[j] if downward else x + dxs[j]
+                    cur = cur_ring[j, x]
                     if i - step < 0 or xp < 0 or xp >= w:
                         best = path_start(cost[y, x], cur)
                     else:
                         yp = y - step if downward else y + step
                         pring = (i - step) % 3
-                        p2e = adaptive_p2(p1, p2, p2_scale, image[y, x], image[yp, xp])
-                        best = path_step(cost[y, x], lbuf[j, pring, xp],
+                        p2e = table_p2(p2, p2_table, image[y, x], image[yp, xp])
+                        best = path_step(cost[y, x], _ring(lb0, lb1, lb2, pring)[j, xp],
                                          int(mbuf[j, pring, xp]), p1, p2e, cur)
                     mbuf[j, ring, x] = best
-                    store_path(cur, lbuf[j, ring, x], out, accumulate or j > 0)
+                    store_path(cur, out, accumulate or j > 0)
 
 
-def new_line_buffers(n_dirs: int, width: int, disparities: int) -> tuple[U16, U16]:
-    """Ring buffers for :func:`sweep_rows`, sentinels in place."""
-    lbuf = np.full((n_dirs, 3, width, disparities + 2), SENTINEL, np.uint16)
+def new_line_buffers(n_dirs: int, width: int,
+                     disparities: int) -> tuple[tuple[U16, U16, U16], U16]:
+    """Ring buffers for :func:`sweep_rows` (three L rows, sentinels in place; min_d L)."""
+    rings = tuple(np.full((n_dirs, width, disparities + 2), SENTINEL, np.uint16)
+                  for _ in range(3))
     mbuf = np.zeros((n_dirs, 3, width), np.uint16)
-    return lbuf, mbuf
+    return rings, mbuf  # type: ignore[return-value]
 
 
 # --------------------------------------------------------------------- references
@@ -179,8 +209,8 @@ def aggregate_path_reference(cost: U8, image: NDArray[np.float32], dx: int, dy: 
             prev = out[yp, xp]
             m = prev.min()
             if p2_scale > 0:
-                p2e = max(p1, int(p2 / (1.0 + abs(float(image[y, x]) - float(image[yp, xp]))
-                                        / p2_scale)))
+                step = int(abs(float(image[y, x]) - float(image[yp, xp])))
+                p2e = max(p1, int(p2 / (1.0 + step / p2_scale)))
             else:
                 p2e = p2
             up = np.concatenate([[SENTINEL], prev[:-1]])

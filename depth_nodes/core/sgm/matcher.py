@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from depth_nodes.core.sgm.aggregate import (
     VERTICAL_DIRECTIONS,
     new_line_buffers,
+    p2_table,
     sweep_rows,
 )
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST, cost_volume
@@ -151,6 +152,8 @@ class SgmMatcher:
     def __init__(self, params: SgmParams | None = None) -> None:
         self.params = (params or SgmParams()).validate()
         self._shape: tuple[int, ...] = ()
+        self._table_key: tuple[Any, ...] = ()
+        self._table = p2_table(0, 0, 0.0)
         self._buf: dict[str, Any] = {}
         self.allocations = 0
 
@@ -165,12 +168,12 @@ class SgmMatcher:
         threads = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
         shape = (h, w, n, p.paths, threads)
         if shape != self._shape:
-            lbuf, mbuf = new_line_buffers(len(dirs), w, n)
+            rings, mbuf = new_line_buffers(len(dirs), w, n)
             self._buf = {
                 'census': (np.empty((h, w), np.uint64), np.empty((h, w), np.uint64)),
                 'cost': np.empty((h, w, n), np.uint8),
                 'partial': np.empty((h, w, n), np.uint16),
-                'lbuf': lbuf, 'mbuf': mbuf,
+                'rings': rings, 'mbuf': mbuf,
                 'dxs': np.array([d[0] for d in dirs], np.int64),
                 'dys': np.array([d[1] for d in dirs], np.int64),
                 'rows': np.empty((threads, w, n), np.uint16),
@@ -180,6 +183,10 @@ class SgmMatcher:
             }
             self._shape = shape
             self.allocations += 1
+        table_key = (p.P1, p.P2, p.p2_adaptive_scale)
+        if table_key != self._table_key:
+            self._table = p2_table(*table_key)
+            self._table_key = table_key
         return self._buf
 
     def match(self, left: NDArray[Any], right: NDArray[Any], *,
@@ -208,11 +215,12 @@ class SgmMatcher:
             intensity_truncation=p.intensity_truncation, out=b['cost'],
             census_buffers=b['census'])
         for downward in (True, False):
+            lb0, lb1, lb2 = b['rings']
             sweep_rows(cost, left_f, b['dxs'], b['dys'], downward, int(p.P1), int(p.P2),
-                       float(p.p2_adaptive_scale), b['lbuf'], b['mbuf'], b['partial'],
-                       not downward, 4 * numba.get_num_threads())
+                       self._table, lb0, lb1, lb2, b['mbuf'], b['partial'], not downward,
+                       4 * numba.get_num_threads())
         horizontal_and_select(
-            cost, left_f, b['partial'], int(p.P1), int(p.P2), float(p.p2_adaptive_scale),
+            cost, left_f, b['partial'], int(p.P1), int(p.P2), self._table,
             int(p.min_disparity), float(p.uniqueness_ratio), SUBPIXEL_MODES[p.subpixel],
             b['rows'],
             b['disparity'], b['disparity_right'], b['ratio'], keep_total)

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
-from depth_nodes.core.sgm.aggregate import adaptive_p2, new_line, path_start, path_step
+from depth_nodes.core.sgm.aggregate import new_line, path_start, path_step, table_p2
 
 U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
@@ -109,7 +109,7 @@ def _right_candidates(column: U16, xr0: int, k_lo: int, k_hi: int,
 
 @njit(parallel=True, cache=True, nogil=True)
 def horizontal_and_select(cost: U8, image: F32, partial: U16, p1: int, p2: int,
-                          p2_scale: float, min_disparity: int, uniqueness: float,
+                          p2_table: NDArray[np.int64], min_disparity: int, uniqueness: float,
                           subpixel: int, rows: U16, disparity: F32, disparity_right: F32,
                           ratio: F32, store_total: bool) -> None:
     """Add the two horizontal paths to ``partial`` and select disparities, row by row.
@@ -119,7 +119,7 @@ def horizontal_and_select(cost: U8, image: F32, partial: U16, p1: int, p2: int,
         image: (H, W) float32 left image (adaptive P2).
         partial: (H, W, D) uint16 sum of the other paths; overwritten with the full sum
             when ``store_total`` (tests), else left as it was.
-        p1, p2, p2_scale: Penalties, as in ``aggregate.sweep_rows``.
+        p1, p2, p2_table: Penalties, as in ``aggregate.sweep_rows``.
         min_disparity: Disparity of index 0.
         uniqueness: OpenCV-style uniqueness ratio in percent (0 disables).
         subpixel: 0 none, 1 parabola, 2 equiangular.
@@ -140,7 +140,7 @@ def horizontal_and_select(cost: U8, image: F32, partial: U16, p1: int, p2: int,
             if x == 0:
                 best = path_start(cost[y, x], cur)
             else:
-                p2e = adaptive_p2(p1, p2, p2_scale, image[y, x], image[y, x - 1])
+                p2e = table_p2(p2, p2_table, image[y, x], image[y, x - 1])
                 best = path_step(cost[y, x], prev, best, p1, p2e, cur)
             out = row[x]
             for d in range(n):
@@ -150,7 +150,7 @@ def horizontal_and_select(cost: U8, image: F32, partial: U16, p1: int, p2: int,
             if x == w - 1:
                 best = path_start(cost[y, x], cur)
             else:
-                p2e = adaptive_p2(p1, p2, p2_scale, image[y, x], image[y, x + 1])
+                p2e = table_p2(p2, p2_table, image[y, x], image[y, x + 1])
                 best = path_step(cost[y, x], prev, best, p1, p2e, cur)
             out = row[x]
             part = partial[y, x]
