@@ -9,10 +9,11 @@ and the sum over paths S(p, d) = sum_r L_r(p, d). Every L is at most max(C) + P2
 with ``paths * (max(C) + P2) < 65536`` the uint16 sums cannot overflow (the matcher checks).
 
 Layout: disparity innermost. Directions with a vertical component are swept row by row
-(first top to bottom, then bottom to top): each pixel of a row depends only on earlier
-rows, so a row is parallel across x. Each L row lives in a small ring buffer padded with a
-large sentinel at both disparity ends, so the inner loop over d has no branch. The
-horizontal directions are fused with the disparity selection in ``select.py``.
+(here top to bottom; bottom to top in ``select.py``): each pixel of a row depends only on
+earlier rows, so a row is parallel across x. Each L row lives in a small ring buffer
+padded with a large sentinel at both disparity ends, so the inner loop over d has no
+branch. The upward and horizontal directions are fused with the disparity selection in
+``select.py``.
 
 P2 may adapt to the image: P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / scale)), with the
 intensity step truncated to an integer (exact for camera images), looked up in a table.
@@ -118,6 +119,7 @@ def path_step(cost: U8, prev: U16, mprev: int, p1: int, p2: int, cur: U16) -> in
 
 @njit(cache=True, nogil=True, inline='always')
 def _ring(lb0: U16, lb1: U16, lb2: U16, index: int) -> U16:
+    """Ring slot ``index`` (0, 1 or 2) of the three L-row arrays."""
     if index == 0:
         return lb0
     if index == 1:
@@ -126,22 +128,20 @@ def _ring(lb0: U16, lb1: U16, lb2: U16, index: int) -> U16:
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def sweep_rows(cost: U8, image: NDArray[np.float32], dxs: NDArray[np.int64],
-               dys: NDArray[np.int64], downward: bool, p1: int, p2: int,
-               p2_table: NDArray[np.int64], lb0: U16, lb1: U16, lb2: U16, mbuf: U16,
-               total: U16, accumulate: bool, chunks: int) -> None:
-    """Aggregate the vertical/diagonal directions ``(dxs, dys)`` over all rows.
+def sweep_down(cost: U8, image: NDArray[np.float32], dxs: NDArray[np.int64],
+               dys: NDArray[np.int64], p1: int, p2: int, p2_table: NDArray[np.int64],
+               lb0: U16, lb1: U16, lb2: U16, mbuf: U16, total: U16, chunks: int) -> None:
+    """Aggregate the downward directions ``(dxs, dys)`` over all rows, top to bottom.
 
-    Top to bottom when ``downward`` (the previous pixel of direction (dx, dy) is at
-    (x - dx, y - dy)), else bottom to top with the mirrored directions. The sum over the
-    directions is written into ``total`` (or added to it when ``accumulate``).
+    The previous pixel of direction (dx, dy) is (x - dx, y - dy); the sum over the
+    directions is written into ``total``. The mirrored (upward) directions are run by
+    ``select.upward_horizontal_select``, which reuses these ring buffers.
 
     Args:
         cost: (H, W, D) uint8 cost volume.
         image: (H, W) float32 image for the adaptive P2.
         dxs: Horizontal steps of the directions.
         dys: Vertical steps (1 or 2).
-        downward: Sweep direction.
         p1: Penalty of a 1-disparity change.
         p2: Penalty of a larger change.
         p2_table: Adaptive P2 by integer intensity step (:func:`p2_table`); empty for a
@@ -151,15 +151,14 @@ def sweep_rows(cost: U8, image: NDArray[np.float32], dxs: NDArray[np.int64],
             arrays let LLVM vectorise the recurrence in place (reading one array, writing
             another) without a scratch buffer and a copy.
         mbuf: (n_dirs, 3, W) uint16 ring of min_d L.
-        total: (H, W, D) uint16 sum over paths.
-        accumulate: Add to ``total`` instead of overwriting it.
+        total: (H, W, D) uint16 out: sum over these paths.
         chunks: Pieces each row is split into for the threads (a few per thread).
     """
     h, w = cost.shape[:2]
     ndir = dxs.shape[0]
     chunks = max(1, min(w, chunks))
     for i in range(h):
-        y = i if downward else h - 1 - i
+        y = i
         ring = i % 3
         cur_ring = _ring(lb0, lb1, lb2, ring)
         for c in prange(chunks):
@@ -167,18 +166,17 @@ def sweep_rows(cost: U8, image: NDArray[np.float32], dxs: NDArray[np.int64],
                 out = total[y, x]
                 for j in range(ndir):
                     step = dys[j]
-                    xp = x - dxs[j] if downward else x + dxs[j]
+                    xp = x - dxs[j]
                     cur = cur_ring[j, x]
                     if i - step < 0 or xp < 0 or xp >= w:
                         best = path_start(cost[y, x], cur)
                     else:
-                        yp = y - step if downward else y + step
                         pring = (i - step) % 3
-                        p2e = table_p2(p2, p2_table, image[y, x], image[yp, xp])
+                        p2e = table_p2(p2, p2_table, image[y, x], image[y - step, xp])
                         best = path_step(cost[y, x], _ring(lb0, lb1, lb2, pring)[j, xp],
                                          int(mbuf[j, pring, xp]), p1, p2e, cur)
                     mbuf[j, ring, x] = best
-                    store_path(cur, out, accumulate or j > 0)
+                    store_path(cur, out, j > 0)
 
 
 def new_line_buffers(n_dirs: int, width: int,

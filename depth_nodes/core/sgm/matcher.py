@@ -21,12 +21,15 @@ from depth_nodes.core.sgm.aggregate import (
     VERTICAL_DIRECTIONS,
     new_line_buffers,
     p2_table,
-    sweep_rows,
+    sweep_down,
 )
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST, cost_volume
-from depth_nodes.core.sgm.select import SUBPIXEL_MODES, horizontal_and_select
+from depth_nodes.core.sgm.select import SUBPIXEL_MODES, upward_horizontal_select
 
 F32 = NDArray[np.float32]
+
+#: Row pieces per thread in the parallel sweeps (a few, so the threads finish together).
+CHUNKS_PER_THREAD = 4
 
 
 @dataclass(frozen=True)
@@ -70,7 +73,7 @@ class SgmParams:
     paths: int = 8
     uniqueness_ratio: float = 20.0
     subpixel: str = 'parabola'
-    median_filter: bool = True
+    median_filter: bool = False
 
     @property
     def max_cost(self) -> int:
@@ -176,7 +179,8 @@ class SgmMatcher:
                 'rings': rings, 'mbuf': mbuf,
                 'dxs': np.array([d[0] for d in dirs], np.int64),
                 'dys': np.array([d[1] for d in dirs], np.int64),
-                'rows': np.empty((threads, w, n), np.uint16),
+                'rows': tuple(np.empty((w, n), np.uint16) for _ in range(3)),
+                'keys': np.empty((CHUNKS_PER_THREAD * threads, w), np.uint32),
                 'disparity': np.empty((h, w), np.float32),
                 'disparity_right': np.empty((h, w), np.float32),
                 'ratio': np.empty((h, w), np.float32),
@@ -214,16 +218,17 @@ class SgmMatcher:
             intensity_weight=p.intensity_weight, intensity_cost=p.intensity_cost,
             intensity_truncation=p.intensity_truncation, out=b['cost'],
             census_buffers=b['census'])
-        for downward in (True, False):
-            lb0, lb1, lb2 = b['rings']
-            sweep_rows(cost, left_f, b['dxs'], b['dys'], downward, int(p.P1), int(p.P2),
-                       self._table, lb0, lb1, lb2, b['mbuf'], b['partial'], not downward,
-                       4 * numba.get_num_threads())
-        horizontal_and_select(
-            cost, left_f, b['partial'], int(p.P1), int(p.P2), self._table,
-            int(p.min_disparity), float(p.uniqueness_ratio), SUBPIXEL_MODES[p.subpixel],
-            b['rows'],
-            b['disparity'], b['disparity_right'], b['ratio'], keep_total)
+        lb0, lb1, lb2 = b['rings']
+        chunks = CHUNKS_PER_THREAD * numba.get_num_threads()
+        sweep_down(cost, left_f, b['dxs'], b['dys'], int(p.P1), int(p.P2), self._table,
+                   lb0, lb1, lb2, b['mbuf'], b['partial'], chunks)
+        total, left_to_right, right_to_left = b['rows']
+        upward_horizontal_select(
+            cost, left_f, b['partial'], b['dxs'], b['dys'], int(p.P1), int(p.P2),
+            self._table, lb0, lb1, lb2, b['mbuf'], int(p.min_disparity),
+            float(p.uniqueness_ratio), SUBPIXEL_MODES[p.subpixel], total, left_to_right,
+            right_to_left, b['keys'], b['disparity'], b['disparity_right'], b['ratio'],
+            keep_total, chunks)
         if p.median_filter:
             _median3(b['disparity'], p.min_disparity)
         return SgmResult(b['disparity'], b['disparity_right'], b['ratio'])

@@ -1,10 +1,8 @@
-"""The horizontal SGM paths fused with disparity selection, one image row at a time.
+"""The upward and horizontal SGM paths fused with disparity selection, row by row.
 
-For each row the left-to-right and right-to-left paths are aggregated into a per-thread
-row buffer and added to the partial sum of the other paths; while that row's total is
-still in cache it is turned into: the left disparity (winner-take-all, sub-pixel,
-uniqueness), the right-view disparity (the minimum along the diagonal of the same total,
-so no second matching), and the cost ratio best / second best.
+While a row's total is still in cache it is turned into: the left disparity
+(winner-take-all, sub-pixel, uniqueness), the right-view disparity (the minimum along the
+diagonal of the same total, so no second matching), and the cost ratio best / second best.
 
 Sub-pixel modes: 0 none, 1 parabola, 2 equiangular (symmetric V).
 
@@ -20,12 +18,18 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
-from depth_nodes.core.sgm.aggregate import new_line, path_start, path_step, table_p2
+from depth_nodes.core.sgm.aggregate import (
+    _ring,
+    new_line,
+    path_start,
+    path_step,
+    store_path,
+    table_p2,
+)
 
 U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
@@ -108,80 +112,119 @@ def _right_candidates(column: U16, xr0: int, k_lo: int, k_hi: int,
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def horizontal_and_select(cost: U8, image: F32, partial: U16, p1: int, p2: int,
-                          p2_table: NDArray[np.int64], min_disparity: int, uniqueness: float,
-                          subpixel: int, rows: U16, disparity: F32, disparity_right: F32,
-                          ratio: F32, store_total: bool) -> None:
-    """Add the two horizontal paths to ``partial`` and select disparities, row by row.
+def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np.int64],
+                             dys: NDArray[np.int64], p1: int, p2: int,
+                             p2_table: NDArray[np.int64], lb0: U16, lb1: U16, lb2: U16,
+                             mbuf: U16, min_disparity: int, uniqueness: float, subpixel: int,
+                             total: U16, left_to_right: U16, right_to_left: U16,
+                             keys: NDArray[np.uint32], disparity: F32, disparity_right: F32,
+                             ratio: F32, store_total: bool, chunks: int) -> None:
+    """The rest of SGM, one row at a time from the bottom up, without a second volume pass.
+
+    For each row: (1) the upward paths (the downward ones mirrored) are added to the
+    downward sum ``partial`` in a row buffer, in parallel across x; (2) the two horizontal
+    paths run one per thread; (3) the total is formed and the left disparity selected,
+    while each chunk of x offers its totals to the right-view pixels; (4) the right view
+    is merged and refined. The full volume is thus read once here and never rewritten.
 
     Args:
         cost: (H, W, D) uint8 cost volume.
         image: (H, W) float32 left image (adaptive P2).
-        partial: (H, W, D) uint16 sum of the other paths; overwritten with the full sum
-            when ``store_total`` (tests), else left as it was.
-        p1, p2, p2_table: Penalties, as in ``aggregate.sweep_rows``.
+        partial: (H, W, D) uint16 sum of the downward paths (``aggregate.sweep_down``);
+            overwritten with the full sum when ``store_total`` (tests).
+        dxs, dys: The downward directions, as given to ``sweep_down``.
+        p1, p2, p2_table: Penalties, as in ``aggregate.sweep_down``.
+        lb0, lb1, lb2, mbuf: Ring buffers, as in ``aggregate.sweep_down``.
         min_disparity: Disparity of index 0.
         uniqueness: OpenCV-style uniqueness ratio in percent (0 disables).
         subpixel: 0 none, 1 parabola, 2 equiangular.
-        rows: (threads, W, D) uint16 scratch, one row of totals per thread.
+        total, left_to_right, right_to_left: (W, D) uint16 row scratch, three arrays.
+        keys: (chunks, W) uint32 scratch for the right view.
         disparity: (H, W) float32 out: left disparity, NaN where invalid.
         disparity_right: (H, W) float32 out: right-view disparity, NaN where invalid.
         ratio: (H, W) float32 out: best / second-best aggregated cost of the left winner.
         store_total: Write the full sum back into ``partial``.
+        chunks: Pieces each row is split into for the threads.
     """
     h, w, n = cost.shape
-    for y in prange(h):
-        row = rows[numba.get_thread_id()]  # type: ignore[attr-defined]
-        line_a, line_b = new_line(n), new_line(n)
-        total = np.empty(n, np.uint16)
-        best = 0
-        for x in range(w):  # left to right: L into row[x]
-            cur, prev = (line_a, line_b) if x & 1 else (line_b, line_a)
-            if x == 0:
-                best = path_start(cost[y, x], cur)
-            else:
-                p2e = table_p2(p2, p2_table, image[y, x], image[y, x - 1])
-                best = path_step(cost[y, x], prev, best, p1, p2e, cur)
-            out = row[x]
-            for d in range(n):
-                out[d] = cur[d + 1]
-        for x in range(w - 1, -1, -1):  # right to left: total into row[x]
-            cur, prev = (line_a, line_b) if x & 1 else (line_b, line_a)
-            if x == w - 1:
-                best = path_start(cost[y, x], cur)
-            else:
-                p2e = table_p2(p2, p2_table, image[y, x], image[y, x + 1])
-                best = path_step(cost[y, x], prev, best, p1, p2e, cur)
-            out = row[x]
-            part = partial[y, x]
-            for d in range(n):
-                total[d] = out[d] + part[d] + cur[d + 1]
-            for d in range(n):
-                out[d] = total[d]
-            if store_total:
+    ndir = dxs.shape[0]
+    chunks = max(1, min(w, chunks, keys.shape[0]))
+    for i in range(h):
+        y = h - 1 - i
+        ring = i % 3
+        cur_ring = _ring(lb0, lb1, lb2, ring)
+        for c in prange(chunks):  # (1) upward paths + downward sum
+            for x in range(c * w // chunks, (c + 1) * w // chunks):
+                out = total[x]
+                part = partial[y, x]
                 for d in range(n):
-                    part[d] = total[d]
-        keys = np.full(w, 0xFFFFFFFF, np.uint32)
-        for x in range(w):
-            k_lo = max(0, x - min_disparity - (w - 1))
-            k_hi = min(n - 1, x - min_disparity)
-            k, r = select_pixel(row[x], k_lo, k_hi, subpixel, uniqueness)
-            disparity[y, x] = min_disparity + k
-            ratio[y, x] = r
-            if k_lo <= k_hi:  # right view: the minimum along the diagonal x = xr + d
-                _right_candidates(row[x], x - min_disparity, k_lo, k_hi, keys)
-        for xr in range(w):
-            key = int(keys[xr])
-            if key == 0xFFFFFFFF:
-                disparity_right[y, xr] = math.nan
-                continue
-            kbest = key & 0xFFFF
-            xl = xr + min_disparity + kbest
-            offset = 0.0
-            if 0 < kbest < n - 1 and 0 < xl < w - 1:
-                offset = subpixel_offset(subpixel, float(row[xl - 1, kbest - 1]),
-                                         float(key >> 16), float(row[xl + 1, kbest + 1]))
-            disparity_right[y, xr] = min_disparity + kbest + offset
+                    out[d] = part[d]
+                for j in range(ndir):
+                    step = dys[j]
+                    xp = x + dxs[j]
+                    cur = cur_ring[j, x]
+                    if i - step < 0 or xp < 0 or xp >= w:
+                        best = path_start(cost[y, x], cur)
+                    else:
+                        pring = (i - step) % 3
+                        p2e = table_p2(p2, p2_table, image[y, x], image[y + step, xp])
+                        best = path_step(cost[y, x], _ring(lb0, lb1, lb2, pring)[j, xp],
+                                         int(mbuf[j, pring, xp]), p1, p2e, cur)
+                    mbuf[j, ring, x] = best
+                    store_path(cur, out, True)
+        for task in prange(2):  # (2) left-to-right and right-to-left, one each
+            line_a, line_b = new_line(n), new_line(n)
+            dst = left_to_right if task == 0 else right_to_left
+            best = 0
+            for s in range(w):
+                x = s if task == 0 else w - 1 - s
+                cur, prev = (line_a, line_b) if s & 1 else (line_b, line_a)
+                if s == 0:
+                    best = path_start(cost[y, x], cur)
+                else:
+                    xn = x - 1 if task == 0 else x + 1
+                    p2e = table_p2(p2, p2_table, image[y, x], image[y, xn])
+                    best = path_step(cost[y, x], prev, best, p1, p2e, cur)
+                row = dst[x]
+                for d in range(n):
+                    row[d] = cur[d + 1]
+        for c in prange(chunks):  # (3) totals, left selection, right-view candidates
+            ck = keys[c]
+            for xr in range(w):
+                ck[xr] = np.uint32(0xFFFFFFFF)
+            for x in range(c * w // chunks, (c + 1) * w // chunks):
+                tot = total[x]
+                ltr = left_to_right[x]
+                rtl = right_to_left[x]
+                for d in range(n):
+                    tot[d] += ltr[d] + rtl[d]
+                if store_total:
+                    part = partial[y, x]
+                    for d in range(n):
+                        part[d] = tot[d]
+                k_lo = max(0, x - min_disparity - (w - 1))
+                k_hi = min(n - 1, x - min_disparity)
+                k, r = select_pixel(tot, k_lo, k_hi, subpixel, uniqueness)
+                disparity[y, x] = min_disparity + k
+                ratio[y, x] = r
+                if k_lo <= k_hi:
+                    _right_candidates(tot, x - min_disparity, k_lo, k_hi, ck)
+        for c in prange(chunks):  # (4) right view: merge the chunks' candidates, refine
+            for xr in range(c * w // chunks, (c + 1) * w // chunks):
+                key = np.uint32(0xFFFFFFFF)
+                for cc in range(chunks):
+                    key = min(key, keys[cc, xr])
+                if key == np.uint32(0xFFFFFFFF):
+                    disparity_right[y, xr] = math.nan
+                    continue
+                kbest = int(key & np.uint32(0xFFFF))
+                xl = xr + min_disparity + kbest
+                offset = 0.0
+                if 0 < kbest < n - 1 and 0 < xl < w - 1:
+                    offset = subpixel_offset(subpixel, float(total[xl - 1, kbest - 1]),
+                                             float(key >> np.uint32(16)),
+                                             float(total[xl + 1, kbest + 1]))
+                disparity_right[y, xr] = min_disparity + kbest + offset
 
 
 # --------------------------------------------------------------------- references
