@@ -92,7 +92,7 @@ PARAMETERS = [
               'constant P2)', 0.0, 255.0),
     ParamSpec('subpixel', 'parabola', 'Sub-pixel refinement: parabola, equiangular or none',
               check=_one_of(list(SUBPIXEL_MODES))),
-    ParamSpec('median_filter', True, '3x3 median on the left disparity'),
+    ParamSpec('median_filter', False, '3x3 median on the left disparity'),
     ParamSpec('correlation_window_size', 5, 'opencv backend: block size (odd)', 1, 255,
               check=_odd),
     ParamSpec('full_dp', True, 'opencv backend: MODE_HH (8 paths) instead of MODE_SGBM'),
