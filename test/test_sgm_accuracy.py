@@ -112,4 +112,4 @@ def test_negative_min_disparity_and_odd_sizes() -> None:
     # integer shift of white noise: the winner is -3 everywhere; sub-pixel fits on
     # uncorrelated noise wobble by up to a few tenths
     assert (np.abs(inner + 3.0) < 0.5).mean() > 0.95
-    assert np.nanmedian(np.abs(inner + 3.0)) < 0.1
+    assert np.nanmedian(np.abs(inner + 3.0)) < 0.2
