@@ -72,7 +72,7 @@ class EvalReport:
     def format(self) -> str:
         """The table printed by ``depth-nodes eval``."""
         n = f'{self.threshold:g}'
-        head = (f'{"method":<44} {"bad-" + n + " dense":>12} {"sparse":>8} {"density":>8} '
+        head = (f'{"method":<50} {"bad-" + n + " dense":>12} {"sparse":>8} {"density":>8} '
                 f'{"avgerr":>7} {"nonocc dense":>13} {"sparse":>8} {"AUC/opt":>8}')
         lines = [
             f'bag {self.bag}: {self.frames} frames {self.size[0]}x{self.size[1]}, '
@@ -84,7 +84,7 @@ class EvalReport:
             auc = f'{r.auc_ratio:8.2f}' if r.auc_ratio is not None else f'{"-":>8}'
             missing = f'  ({r.missing_frames} frames missing)' if r.missing_frames else ''
             lines.append(
-                f'{r.method:<44} {r.bad_dense:12.4f} {r.bad_sparse:8.4f} {r.density:8.3f} '
+                f'{r.method:<50} {r.bad_dense:12.4f} {r.bad_sparse:8.4f} {r.density:8.3f} '
                 f'{r.avgerr:7.3f} {r.bad_dense_nonocc:13.4f} {r.bad_sparse_nonocc:8.4f} '
                 f'{auc}{missing}'
             )
