@@ -8,8 +8,14 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
+import rclpy
+from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.srv import SetParameters
+from rclpy.context import Context
+from rclpy.parameter import Parameter
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_DIR = Path(__file__).resolve().parent
@@ -40,3 +46,25 @@ def run_cli(args: list[str], env: dict[str, str] | None = None,
         [sys.executable, '-m', 'depth_nodes.tools.cli', *args],
         capture_output=True, text=True, env=env, timeout=timeout, cwd=REPO, check=False,
     )
+
+
+@pytest.fixture
+def context(ros_env: dict[str, str]) -> Iterator[Context]:
+    """An initialised rclpy context on the test's own ROS_DOMAIN_ID."""
+    ctx = Context()
+    rclpy.init(args=[], context=ctx)
+    yield ctx
+    rclpy.shutdown(context=ctx)
+
+
+def set_parameters(peer: Any, executor: Any, node: str, **values: Any) -> list[SetParametersResult]:
+    """Set parameters of ``node`` through its standard set_parameters service, as
+    `ros2 param set` does, spinning ``executor`` until the answer arrives."""
+    client = peer.create_client(SetParameters, f'{node}/set_parameters')
+    assert client.wait_for_service(timeout_sec=30)
+    request = SetParameters.Request()
+    request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+    future = client.call_async(request)
+    executor.spin_until_future_complete(future, timeout_sec=30)
+    assert future.done(), f'{node}/set_parameters did not answer'
+    return list(future.result().results)

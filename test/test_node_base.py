@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import numpy as np
 import pytest
@@ -18,13 +17,6 @@ from harness_nodes import InvertNode
 
 pytestmark = pytest.mark.ros
 
-
-@pytest.fixture
-def context(ros_env: dict[str, str]) -> Any:
-    ctx = Context()
-    rclpy.init(args=[], context=ctx)
-    yield ctx
-    rclpy.shutdown(context=ctx)
 
 
 def test_live_publish_over_dds_with_rep2003_qos(context: Context) -> None:

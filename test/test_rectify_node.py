@@ -11,12 +11,11 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
-from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 
+from conftest import set_parameters
 from depth_nodes.core.rectify import Rectifier
 from depth_nodes.nodes.rectify import RectifyNode
 from depth_nodes.ros.camera_info import model_to_camera_info
@@ -28,13 +27,6 @@ pytestmark = pytest.mark.ros
 CONFIG = StereoSimConfig(width=160, height=120, n_frames=1, seed=8, colour=True)
 FRAME = next(simulate_stereo(CONFIG))
 
-
-@pytest.fixture
-def context(ros_env: dict[str, str]) -> Any:
-    ctx = Context()
-    rclpy.init(args=[], context=ctx)
-    yield ctx
-    rclpy.shutdown(context=ctx)
 
 
 @pytest.fixture
@@ -113,14 +105,8 @@ def test_unmatched_stamps_are_counted(node: Any) -> None:
 
 
 def _set(client_node: Any, executor: Any, name: str, value: Any) -> Any:
-    client = client_node.create_client(SetParameters, '/rectify/set_parameters')
-    assert client.wait_for_service(timeout_sec=30)
-    request = SetParameters.Request()
-    request.parameters = [Parameter(name, value=value).to_parameter_msg()]
-    future = client.call_async(request)
-    executor.spin_until_future_complete(future, timeout_sec=30)
-    assert future.done()
-    return future.result().results[0]
+    (result,) = set_parameters(client_node, executor, '/rectify', **{name: value})
+    return result
 
 
 def test_interpolation_changes_through_the_parameter_service(node: Any,

@@ -7,11 +7,11 @@ from typing import Any
 import numpy as np
 import pytest
 import rclpy
-from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
+from conftest import set_parameters
 from depth_nodes.core.baseline import opencv_sgbm
 from depth_nodes.core.sgm import SgmMatcher
 from depth_nodes.nodes.sgm_stereo import SgmStereoNode, opencv_settings, sgm_params
@@ -26,13 +26,6 @@ CONFIG = StereoSimConfig(width=160, height=120, n_frames=1, seed=6, distortion_s
                          rotation_deg=0.0, noise_sigma=1.0)
 FRAME = next(simulate_stereo(CONFIG))
 
-
-@pytest.fixture
-def context(ros_env: dict[str, str]) -> Any:
-    ctx = Context()
-    rclpy.init(args=[], context=ctx)
-    yield ctx
-    rclpy.shutdown(context=ctx)
 
 
 @pytest.fixture
@@ -114,13 +107,7 @@ def test_missing_camera_info_is_counted(node: Any) -> None:
 
 
 def _set(peer: Any, executor: Any, **values: Any) -> Any:
-    client = peer.create_client(SetParameters, '/sgm_stereo/set_parameters')
-    assert client.wait_for_service(timeout_sec=30)
-    request = SetParameters.Request()
-    request.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-    future = client.call_async(request)
-    executor.spin_until_future_complete(future, timeout_sec=30)
-    return future.result().results
+    return set_parameters(peer, executor, '/sgm_stereo', **values)
 
 
 def test_parameters_change_live_and_bad_values_are_rejected(node: Any,

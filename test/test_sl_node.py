@@ -10,7 +10,6 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from std_msgs.msg import Header
@@ -39,13 +38,6 @@ _SIM = ProjectorCameraSim(SIM)
 CAPTURE = _SIM.capture(generate_patterns(PS))
 N = PS.count
 
-
-@pytest.fixture
-def context(ros_env: dict[str, str]) -> Any:
-    ctx = Context()
-    rclpy.init(args=[], context=ctx)
-    yield ctx
-    rclpy.shutdown(context=ctx)
 
 
 def _make(context: Context, **params: Any) -> Any:
