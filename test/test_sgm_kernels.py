@@ -39,8 +39,12 @@ def test_census_matches_reference(window: tuple[int, int]) -> None:
      'intensity_truncation': 12},
 ])
 @pytest.mark.parametrize('min_disparity', [0, -4, 3])
-def test_cost_volume_matches_reference(settings: dict[str, object], min_disparity: int) -> None:
+@pytest.mark.parametrize('image_type', ['uint8', 'float32'])
+def test_cost_volume_matches_reference(settings: dict[str, object], min_disparity: int,
+                                       image_type: str) -> None:
     left, right = _pair()
+    if image_type == 'float32':  # fractional intensities
+        left, right = left + np.float32(0.25), right * np.float32(0.97)
     kwargs = {'min_disparity': min_disparity, 'disparity_range': 11,
               'census_window': (5, 7), **settings}
     np.testing.assert_array_equal(cost_volume(left, right, **kwargs),
