@@ -75,11 +75,6 @@ class SgmParams:
     subpixel: str = 'parabola'
     median_filter: bool = False
 
-    @property
-    def max_cost(self) -> int:
-        """The largest cost the cost volume can hold (out-of-range disparities)."""
-        return OUT_OF_RANGE_COST
-
     def validate(self, width: int | None = None) -> SgmParams:
         """Check every field (and the range against ``width``); returns self.
 
