@@ -61,6 +61,11 @@ def _bag(path: Path, with_estimate: bool = True) -> tuple[np.ndarray, np.ndarray
                     delta_d=1 / 16), t)
                 conf = np.where(bad, 0.1, np.where(invalid, 0.0, 0.9)).astype(np.float32)
                 writer.write('/stereo/confidence', array_to_image(conf, '32FC1', h), t)
+                depth = np.full((H, W), 1.25 * 1.01, np.float32)  # truth: f B / d = 1.25 m
+                depth[invalid] = np.nan
+                writer.write('/stereo/depth', array_to_image(depth, '32FC1', h), t)
+            writer.write('/stereo/left/depth_gt',
+                         array_to_image(np.full((H, W), 1.25, np.float32), '32FC1', h), t)
     return bad, invalid
 
 
@@ -83,6 +88,11 @@ def test_scores_match_hand_computed_values(tmp_path: Path) -> None:
     # every bad or invalid pixel has a lower confidence than every good one: optimal ranking
     assert ours.auc_ratio == pytest.approx(1.0, abs=0.01)
     assert report.gt_range == (D, D)
+    depth = report.depth['/stereo/depth']
+    assert depth.mae == pytest.approx(0.0125, rel=1e-4)
+    assert depth.rel == pytest.approx(0.01, rel=1e-4)
+    assert depth.density == pytest.approx(1 - invalid.sum() / n)
+    assert 'depth /stereo/depth vs ground truth: mean |dZ| 12.5 mm' in report.format()
     assert report.size == (W, H)
     # the OpenCV reference ran on the same rectified pair and does well on this easy plane
     for label in ('opencv SGBM MODE_SGBM, stereo_image_proc defaults',

@@ -128,6 +128,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     elif args.stage == 'sgm':
         print(bench_sgm(repeats=args.frames or 10, disparities=args.disparities,
                         paths=args.paths).format())
+    elif args.stage == 'point_cloud':
+        from depth_nodes.tools.bench_point_cloud import bench_point_cloud
+
+        print(bench_point_cloud(repeats=args.frames or 20).format())
     elif args.stage == 'structured_light':
         from depth_nodes.tools.structured_light_eval import bench_structured_light
 
@@ -193,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     evsl.set_defaults(func=_cmd_eval_sl)
 
     bench = sub.add_parser('bench', help='speed figures beside OpenCV, measured in one run')
-    bench.add_argument('stage', choices=['rectify', 'sgm', 'structured_light'],
+    bench.add_argument('stage', choices=['rectify', 'sgm', 'point_cloud', 'structured_light'],
                        help='what to time')
     bench.add_argument('--bag', help='structured_light: the bag to time (default: bundled)')
     bench.add_argument('--width', type=int, default=640, help='rectify: frame width')

@@ -21,7 +21,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.baseline import BASELINES, opencv_range, opencv_sgbm
-from depth_nodes.core.metrics import disparity_errors, sparsification_auc
+from depth_nodes.core.metrics import (
+    DepthScores,
+    depth_errors,
+    disparity_errors,
+    sparsification_auc,
+)
 from depth_nodes.core.rectify import rectify_image
 from depth_nodes.errors import BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
@@ -68,6 +73,8 @@ class EvalReport:
     rows: list[MethodScores] = field(default_factory=list)
     #: Mean |image_rect - image_rect_gt| per side (grey levels, 16 px margin), when both exist.
     rectification_mad: dict[str, float] = field(default_factory=dict)
+    #: Depth images (REP 118) scored against ``<ns>/left/depth_gt``, by topic.
+    depth: dict[str, DepthScores] = field(default_factory=dict)
 
     def format(self) -> str:
         """The table printed by ``depth-nodes eval``."""
@@ -88,6 +95,10 @@ class EvalReport:
                 f'{r.avgerr:7.3f} {r.bad_dense_nonocc:13.4f} {r.bad_sparse_nonocc:8.4f} '
                 f'{auc}{missing}'
             )
+        for topic, d in sorted(self.depth.items()):
+            lines.append(f'depth {topic} vs ground truth: mean |dZ| {d.mae * 1e3:.1f} mm, '
+                         f'relative {d.rel * 100:.2f}%, rmse {d.rmse * 1e3:.1f} mm, '
+                         f'density {d.density:.3f}')
         for side, mad in sorted(self.rectification_mad.items()):
             lines.append(f'rectified {side} vs ground-truth render: mean |diff| {mad:.2f} grey '
                          f'levels ({RECT_MARGIN} px margin)')
@@ -188,10 +199,12 @@ def evaluate_bag(
                            if ty == DISPARITY and not t.endswith(('_gt', '_right')))
         confidences = sorted(t for t, ty in reader.topics.items()
                              if ty == IMAGE and t.endswith('/confidence'))
-        wanted = [gt_topic, *estimates, *confidences]
+        depths = sorted(t for t, ty in reader.topics.items()
+                        if ty == IMAGE and t.endswith('/depth'))
+        wanted = [gt_topic, *estimates, *confidences, *depths]
         extra = [f'{ns}/left/occlusion_gt', f'{ns}/left/image_rect', f'{ns}/right/image_rect',
                  f'{ns}/left/image_rect_gt', f'{ns}/right/image_rect_gt']
-        if previews is not None:
+        if previews is not None or depths:
             extra.append(f'{ns}/left/depth_gt')
         if baselines:
             extra += [f'{ns}/{s}/{k}' for s in ('left', 'right')
@@ -239,7 +252,28 @@ def evaluate_bag(
             _write_previews(Path(previews), stamp, frame_out, maps, threshold)
     report.rows = [a.scores(m, threshold) for m, a in acc.items()]
     report.rectification_mad = _rectification_mad(data, ns)
+    report.depth = {t: _depth_scores(data, t, f'{ns}/left/depth_gt') for t in depths}
     return report
+
+
+def _depth_scores(data: dict[str, dict[int, Any]], topic: str, gt_topic: str) -> DepthScores:
+    """A depth topic (32FC1 metres, or 16UC1 millimetres with 0 unknown) against the
+    ground-truth depth, pooled over the frames both have; a missing frame counts as empty."""
+    truth = data.get(gt_topic, {})
+    est, gt = [], []
+    for stamp in sorted(truth):
+        z_gt = image_to_array(truth[stamp]).astype(np.float64)
+        msg = data[topic].get(stamp)
+        if msg is None:
+            z = np.full(z_gt.shape, np.nan)
+        elif msg.encoding == '16UC1':
+            raw = image_to_array(msg).astype(np.float64)
+            z = np.where(raw > 0, raw / 1000.0, np.nan)
+        else:
+            z = image_to_array(msg).astype(np.float64)
+        est.append(z)
+        gt.append(z_gt)
+    return depth_errors(np.concatenate(est), np.concatenate(gt))
 
 
 def _rectification_mad(data: dict[str, dict[int, Any]], ns: str) -> dict[str, float]:

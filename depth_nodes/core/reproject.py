@@ -1,0 +1,168 @@
+"""Disparity -> 3-D points and depth in the left rectified camera frame (no ROS).
+
+Geometry from the rectified projection matrices ``P_left`` and ``P_right`` (CameraInfo
+``P``; shared ``fx``, ``fy``, ``cy``), with ``d = x_left - x_right`` and
+``delta_cx = cx_right - cx_left``::
+
+    Z = f B / (d + delta_cx)             (f B = Tx_left - Tx_right, StereoModel.focal * baseline)
+    X = ((x - cx_left) Z - Tx_left) / fx
+    Y = ((y - cy_left) Z - Ty_left) / fy
+
+which inverts ``P_left [X Y Z 1]^T ~ (x, y, 1)`` and ``P_right [X Y Z 1]^T ~ (x - d, y, 1)``
+exactly (``Tx_left``/``Ty_left`` are zero for the usual left camera). A 1-sigma disparity
+error ``dd`` gives, to first order, the depth standard deviation ``Z^2 / (f B) * dd``.
+
+Decisions:
+    * A pixel is invalid (NaN in every output) where the disparity is NaN or infinite,
+      where ``d + delta_cx <= 0`` (at or behind infinity), where Z is outside
+      ``[min_range, max_range]`` (0 = no limit; range is the depth Z along the optical axis,
+      as depth images and PCL pass-through filters use it), or where a confidence is given
+      and is below ``min_confidence`` or NaN.
+    * Arithmetic is float64, outputs float32: the only rounding is the final cast.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from depth_nodes.core.camera import StereoModel
+
+F32 = NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class Reprojection:
+    """What :func:`reproject_disparity` returns.
+
+    Attributes:
+        points: (H, W, 3) float32 X, Y, Z in metres, NaN where invalid.
+        depth: (H, W) float32 Z in metres, NaN where invalid (REP 118).
+        valid: (H, W) bool, True where the point is kept.
+    """
+
+    points: F32
+    depth: F32
+    valid: NDArray[np.bool_]
+
+
+def _check_2d(name: str, arr: NDArray[Any], shape: tuple[int, ...] | None = None) -> None:
+    if arr.ndim != 2:
+        raise ValueError(f'{name} must be a (H, W) array, got shape {arr.shape}')
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f'{name} must have the disparity shape {shape}, got {arr.shape}')
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise ValueError(f'{name} must be a float array, got dtype {arr.dtype}')
+
+
+def reproject_disparity(
+    disparity: NDArray[np.floating[Any]],
+    stereo: StereoModel,
+    *,
+    min_range: float = 0.0,
+    max_range: float = 0.0,
+    confidence: NDArray[np.floating[Any]] | None = None,
+    min_confidence: float = 0.0,
+) -> Reprojection:
+    """Reproject a left-view disparity map to organised 3-D points and a depth image.
+
+    Args:
+        disparity: (H, W) float disparities ``x_left - x_right`` in pixels, NaN where
+            unknown; H x W must be the size of ``stereo``'s (effective) cameras.
+        stereo: The rectified pair (binned / ROI-applied models of the delivered images).
+        min_range: Nearest depth Z kept, metres (0: no limit).
+        max_range: Farthest depth Z kept, metres (0: no limit).
+        confidence: Optional (H, W) float confidence, same shape as ``disparity``.
+        min_confidence: Pixels whose confidence is below this (or NaN) are invalid; only
+            used with ``confidence``.
+
+    Returns:
+        The points, depth and validity mask (see :class:`Reprojection`).
+
+    Raises:
+        ValueError: A shape or dtype that does not fit, a size other than the cameras', a
+            negative range or ``max_range`` below ``min_range``.
+    """
+    disparity = np.asarray(disparity)
+    _check_2d('disparity', disparity)
+    h, w = disparity.shape
+    if (stereo.left.width, stereo.left.height) != (w, h):
+        raise ValueError(f'disparity is {w}x{h} but the cameras are '
+                         f'{stereo.left.width}x{stereo.left.height}')
+    if min_range < 0 or max_range < 0:
+        raise ValueError(f'min_range ({min_range}) and max_range ({max_range}) must be >= 0')
+    if max_range and max_range < min_range:
+        raise ValueError(f'max_range ({max_range}) must be >= min_range ({min_range}) or 0')
+    if confidence is not None:
+        confidence = np.asarray(confidence)
+        _check_2d('confidence', confidence, disparity.shape)
+    return _reproject(disparity, stereo, min_range, max_range, confidence, min_confidence)
+
+
+def _reproject(disparity: NDArray[Any], stereo: StereoModel, min_range: float,
+               max_range: float, confidence: NDArray[Any] | None,
+               min_confidence: float) -> Reprojection:
+    h, w = disparity.shape
+    P = stereo.left.projection
+    fx, fy, cx, cy, tx, ty = P[0, 0], P[1, 1], P[0, 2], P[1, 2], P[0, 3], P[1, 3]
+    fb = stereo.focal * stereo.baseline
+    den = disparity.astype(np.float64) + stereo.delta_cx
+    with np.errstate(invalid='ignore', divide='ignore'):
+        valid = np.isfinite(den) & (den > 0)
+        z = fb / np.where(valid, den, np.nan)
+        if min_range > 0:
+            valid &= z >= min_range
+        if max_range > 0:
+            valid &= z <= max_range
+        if confidence is not None:
+            valid &= confidence >= min_confidence
+    z[~valid] = np.nan
+    points = np.empty((h, w, 3), dtype=np.float32)
+    u = np.arange(w, dtype=np.float64) - cx
+    v = np.arange(h, dtype=np.float64) - cy
+    points[..., 0] = (u[None, :] * z - tx) / fx
+    points[..., 1] = (v[:, None] * z - ty) / fy
+    points[..., 2] = z
+    return Reprojection(points=points, depth=points[..., 2].copy(), valid=valid)
+
+
+def depth_std(depth: NDArray[np.floating[Any]], focal: float, baseline: float,
+              disparity_std: float) -> F32:
+    """First-order depth standard deviation ``Z^2 / (f B) * disparity_std``.
+
+    Args:
+        depth: Depths Z in metres, any shape (NaN stays NaN).
+        focal: Rectified focal length in pixels.
+        baseline: Baseline in metres.
+        disparity_std: Disparity standard deviation in pixels (>= 0).
+
+    Returns:
+        float32 array of the shape of ``depth``, metres.
+
+    Raises:
+        ValueError: ``focal * baseline`` not positive, or ``disparity_std`` negative.
+    """
+    if not focal * baseline > 0:
+        raise ValueError(f'focal * baseline must be positive, got {focal} * {baseline}')
+    if not disparity_std >= 0:
+        raise ValueError(f'disparity_std must be >= 0, got {disparity_std}')
+    z = np.asarray(depth, dtype=np.float64)
+    return (z * z * (disparity_std / (focal * baseline))).astype(np.float32)
+
+
+def depth_to_millimetres(depth: NDArray[np.floating[Any]]) -> NDArray[np.uint16]:
+    """REP 118 16UC1: depth rounded to millimetres, 0 where unknown or beyond 65.535 m.
+
+    Args:
+        depth: Depths Z in metres, NaN where unknown.
+
+    Returns:
+        uint16 array of the same shape.
+    """
+    mm = np.rint(np.asarray(depth, dtype=np.float64) * 1000.0)
+    with np.errstate(invalid='ignore'):
+        ok = (mm >= 1) & (mm <= np.iinfo(np.uint16).max)
+    return np.where(ok, mm, 0).astype(np.uint16)

@@ -1,0 +1,259 @@
+"""Point cloud node: disparity -> organised PointCloud2 and REP 118 depth image.
+
+A drop-in for stereo_image_proc's PointCloudNode, plus the depth image users have asked it
+for. Subscribes ``disparity`` (stereo_msgs/DisparityImage; remap it to ``disparity_checked``
+when the cross-check node runs), ``left/camera_info``, ``right/camera_info``, and
+``left/image_rect_color`` when ``use_color`` is true, ``confidence`` (32FC1) when
+``use_confidence`` is true. One synchroniser over exactly those inputs is built at
+start-up (exact stamps, or ``approximate_sync``), so ``use_color`` and ``use_confidence``
+are read-only: a cloud is never published without the colour a set should have carried.
+
+Publishes, with the disparity's header (the left optical frame):
+
+* ``points2``: organised H x W, ``is_dense`` false, NaN x/y/z for invalid points; x, y, z
+  float32 at 0, 4, 8; with colour ``rgb`` (PCL's packed float) at 16 and 32-byte points,
+  or at 12 and 16-byte points with ``avoid_point_cloud_padding``; without colour 16 or 12
+  bytes. ``extra_fields`` (comma-separated: ``confidence``, ``depth_std``) follow as
+  float32 fields (:mod:`depth_nodes.ros.pointcloud` gives the layouts).
+* ``depth``: 32FC1 metres with NaN unknown, or (``depth_encoding: 16UC1``) millimetres
+  with 0 unknown (beyond 65.535 m too).
+
+Geometry comes from the CameraInfos' rectified projection matrices, cx offset between the
+cameras included (:mod:`depth_nodes.core.reproject`); the DisparityImage's ``f``/``t`` are
+not used. ``min_range``/``max_range`` bound the depth Z, ``min_confidence`` the confidence;
+all but the synchronisation parameters change at runtime and apply from the next frame.
+
+Frames without output are counted and logged with a reason: ``disparity_encoding`` (not
+32FC1), ``unsupported_encoding`` (colour image not mono8/mono16/rgb8/bgr8/rgba8/bgra8, or
+confidence not 32FC1), ``malformed_image``, ``size_mismatch`` (disparity vs image,
+confidence or camera_info), ``uncalibrated``, ``bad_calibration``, ``sync_*``.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from stereo_msgs.msg import DisparityImage
+
+from depth_nodes.core.camera import StereoModel
+from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reproject_disparity
+from depth_nodes.errors import CalibrationError, MessageError
+from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.ros.disparity import read_disparity
+from depth_nodes.ros.image import array_to_image, image_to_array, to_rgb8
+from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.pointcloud import build_pointcloud
+
+#: Colour encodings the cloud's rgb can be taken from.
+COLOR_ENCODINGS = ('mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8')
+#: Names accepted in ``extra_fields``.
+EXTRA_FIELDS = ('confidence', 'depth_std')
+DEPTH_ENCODINGS = ('32FC1', '16UC1')
+
+
+def parse_extra_fields(value: str) -> list[str]:
+    """The field names of an ``extra_fields`` value: comma-separated, blanks ignored."""
+    return [name.strip() for name in value.split(',') if name.strip()]
+
+
+def _check_extra_fields(value: str) -> str | None:
+    names = parse_extra_fields(value)
+    unknown = [n for n in names if n not in EXTRA_FIELDS]
+    if unknown:
+        return f'unknown field(s) {", ".join(unknown)}; allowed: {", ".join(EXTRA_FIELDS)}'
+    if len(set(names)) != len(names):
+        return 'a field is listed twice'
+    return None
+
+
+def _check_depth_encoding(value: str) -> str | None:
+    return None if value in DEPTH_ENCODINGS else f'must be one of {", ".join(DEPTH_ENCODINGS)}'
+
+
+PARAMETERS = [
+    ParamSpec('queue_size', 5, 'Synchroniser queue of the inputs', 1, 1000, read_only=True),
+    ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
+              'instead of exact stamps', read_only=True),
+    ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
+              'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
+    ParamSpec('use_color', True, 'Subscribe left/image_rect_color and add rgb to points2 '
+              '(start-up only)', read_only=True),
+    ParamSpec('use_confidence', False, 'Subscribe confidence (32FC1 in [0, 1]) for '
+              'min_confidence and the confidence field (start-up only)', read_only=True),
+    ParamSpec('avoid_point_cloud_padding', False, 'Pack points (12/16 bytes) instead of '
+              'padding them to 16/32 bytes'),
+    ParamSpec('min_range', 0.0, 'Nearest depth Z kept, metres (0: no limit)', 0.0, 1.0e6),
+    ParamSpec('max_range', 0.0, 'Farthest depth Z kept, metres (0: no limit)', 0.0, 1.0e6),
+    ParamSpec('min_confidence', 0.0, 'Smallest confidence kept (needs use_confidence)',
+              0.0, 1.0),
+    ParamSpec('depth_encoding', '32FC1', 'depth image: 32FC1 metres (NaN unknown) or 16UC1 '
+              'millimetres (0 unknown)', check=_check_depth_encoding),
+    ParamSpec('extra_fields', '', 'Comma-separated extra float32 fields of points2: '
+              'confidence (needs use_confidence), depth_std', check=_check_extra_fields),
+    ParamSpec('disparity_std', 0.25, 'Disparity standard deviation, px, for depth_std',
+              0.0, 100.0),
+]
+
+
+def _cross_check(values: Mapping[str, Any]) -> str | None:
+    if values['max_range'] and values['max_range'] < values['min_range']:
+        return (f'max_range ({values["max_range"]}) must be >= min_range '
+                f'({values["min_range"]}) or 0 (no limit)')
+    if not values['use_confidence']:
+        if values['min_confidence'] > 0:
+            return 'min_confidence needs use_confidence: true (set at start-up)'
+        if 'confidence' in parse_extra_fields(values['extra_fields']):
+            return 'extra field confidence needs use_confidence: true (set at start-up)'
+    return None
+
+
+class PointCloudNode(DepthNode):
+    """Disparity (+ colour, + confidence) -> organised ``points2`` and ``depth``."""
+
+    def __init__(self, node_name: str = 'point_cloud', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
+        values = self.params.values
+        self._stereo_key: tuple[Any, ...] | None = None
+        self._stereo: StereoModel
+        self.use_color: bool = values['use_color']
+        self.use_confidence: bool = values['use_confidence']
+        self.pub_points = self.add_output(PointCloud2, 'points2')
+        self.pub_depth = self.add_output(Image, 'depth')
+        inputs: list[tuple[type, str]] = [(DisparityImage, 'disparity'),
+                                          (CameraInfo, 'left/camera_info'),
+                                          (CameraInfo, 'right/camera_info')]
+        if self.use_color:
+            inputs.append((Image, 'left/image_rect_color'))
+        if self.use_confidence:
+            inputs.append((Image, 'confidence'))
+        tolerance = values['approximate_sync_tolerance_seconds']
+        self.add_synced_inputs(inputs, self._on_synced, queue_size=values['queue_size'],
+                               approximate=values['approximate_sync'],
+                               max_interval=tolerance or None)
+
+    def _on_synced(self, disparity: DisparityImage, left_info: CameraInfo,
+                   right_info: CameraInfo, *rest: Image) -> None:
+        extra = list(rest)
+        image = extra.pop(0) if self.use_color else None
+        confidence = extra.pop(0) if self.use_confidence else None
+        self.on_frame(disparity, left_info, right_info, image=image, confidence=confidence)
+
+    def _stereo_model(self, left_info: CameraInfo, right_info: CameraInfo) -> StereoModel:
+        """The stereo geometry, converted and validated only when a CameraInfo changes."""
+        key = tuple((m.width, m.height, m.distortion_model, tuple(m.k), tuple(m.d),
+                     tuple(m.r), tuple(m.p), m.binning_x, m.binning_y, m.roi.x_offset,
+                     m.roi.y_offset, m.roi.width, m.roi.height)
+                    for m in (left_info, right_info))
+        if key != self._stereo_key:
+            left, right = (camera_info_to_model(m).binned() for m in (left_info, right_info))
+            self._stereo = StereoModel(left, right)
+            self._stereo_key = key
+        return self._stereo
+
+    def _colour(self, image: Image, shape: tuple[int, int]) -> Any:
+        """(H, W, 3) uint8 RGB of ``image``, or None after counting the reason."""
+        if image.encoding not in COLOR_ENCODINGS:
+            self.drop('unsupported_encoding', f'colour image encoding {image.encoding!r} is '
+                      f'not one of {", ".join(COLOR_ENCODINGS)}')
+            return None
+        if (image.height, image.width) != shape:
+            self.drop('size_mismatch', f'colour image is {image.width}x{image.height}, '
+                      f'disparity {shape[1]}x{shape[0]}')
+            return None
+        try:
+            return to_rgb8(image_to_array(image), image.encoding)
+        except MessageError as exc:
+            self.drop('malformed_image', f'colour image: {exc}')
+            return None
+
+    def _confidence(self, image: Image, shape: tuple[int, int]) -> Any:
+        """(H, W) float32 confidence, or None after counting the reason."""
+        if image.encoding != '32FC1':
+            self.drop('unsupported_encoding', f'confidence encoding must be 32FC1, got '
+                      f'{image.encoding!r}')
+            return None
+        if (image.height, image.width) != shape:
+            self.drop('size_mismatch', f'confidence is {image.width}x{image.height}, '
+                      f'disparity {shape[1]}x{shape[0]}')
+            return None
+        try:
+            return image_to_array(image)
+        except MessageError as exc:
+            self.drop('malformed_image', f'confidence: {exc}')
+            return None
+
+    def on_frame(self, disparity_msg: DisparityImage, left_info: CameraInfo,
+                 right_info: CameraInfo, *, image: Image | None = None,
+                 confidence: Image | None = None) -> None:
+        """Turn one synchronised set into ``points2`` and ``depth``."""
+        values = self.params.values
+        if disparity_msg.image.encoding != '32FC1':
+            self.drop('disparity_encoding', f'DisparityImage image encoding must be 32FC1, '
+                      f'got {disparity_msg.image.encoding!r}')
+            return
+        try:
+            disparity = read_disparity(disparity_msg).disparity
+        except MessageError as exc:
+            self.drop('malformed_image', f'disparity: {exc}')
+            return
+        shape = disparity.shape
+        if not np.any(np.asarray(left_info.k)) or not np.any(np.asarray(right_info.k)):
+            self.drop('uncalibrated', 'a camera_info has K all zero: the stereo pair is not '
+                      'calibrated')
+            return
+        try:
+            stereo = self._stereo_model(left_info, right_info)
+        except CalibrationError as exc:
+            self.drop('bad_calibration', f'camera_info unusable: {exc}')
+            return
+        if (stereo.left.height, stereo.left.width) != shape:
+            self.drop('size_mismatch', f'disparity is {shape[1]}x{shape[0]} but camera_info '
+                      f'describes {stereo.left.width}x{stereo.left.height}')
+            return
+        rgb = conf = None
+        if self.use_color:
+            if image is None:
+                raise ValueError('use_color is true: on_frame needs the colour image')
+            rgb = self._colour(image, shape)
+            if rgb is None:
+                return
+        if self.use_confidence:
+            if confidence is None:
+                raise ValueError('use_confidence is true: on_frame needs the confidence')
+            conf = self._confidence(confidence, shape)
+            if conf is None:
+                return
+        result = reproject_disparity(
+            disparity, stereo, min_range=values['min_range'], max_range=values['max_range'],
+            confidence=conf, min_confidence=values['min_confidence'])
+        extra: dict[str, Any] = {}
+        for name in parse_extra_fields(values['extra_fields']):
+            if name == 'confidence':
+                extra[name] = conf
+            else:
+                extra[name] = depth_std(result.depth, stereo.focal, stereo.baseline,
+                                        values['disparity_std'])
+        header = disparity_msg.header
+        self.pub_points.publish(build_pointcloud(
+            result.points, header, rgb=rgb, pad=not values['avoid_point_cloud_padding'],
+            extra_fields=extra))
+        if values['depth_encoding'] == '16UC1':
+            self.pub_depth.publish(array_to_image(depth_to_millimetres(result.depth), '16UC1',
+                                                  header))
+        else:
+            self.pub_depth.publish(array_to_image(result.depth, '32FC1', header))
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console script ``point_cloud`` (``ros2 run depth_nodes point_cloud``)."""
+    sys.exit(run_node(PointCloudNode, args))
+
+
+if __name__ == '__main__':
+    main()
