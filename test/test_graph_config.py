@@ -9,6 +9,7 @@ import pytest
 from depth_nodes.errors import ConfigError
 from depth_nodes.ros.graph import (
     NodeSpec,
+    addressed_parameters,
     load_graph_config,
     load_params_file,
     parameters_for,
@@ -94,6 +95,9 @@ stereo:
     assert parameters_for(spec, params) == {'offset': 7, 'queue_size': 5, 'own': True}
     other = NodeSpec('restore', 'x:Y', '/stereo/left')
     assert parameters_for(other, params) == {'queue_size': 5, 'offset': 1}
+    # only names addressed to a node in particular must exist on it; /** ones may not
+    assert addressed_parameters(spec, params) == {'offset', 'own'}
+    assert addressed_parameters(other, params) == set()
 
 
 @pytest.mark.parametrize(('text', 'message'), [
@@ -115,3 +119,24 @@ def test_resolve_plugin_errors() -> None:
     with pytest.raises(ConfigError, match='has no class Missing'):
         resolve_plugin('harness_nodes:Missing')
     assert resolve_plugin('harness_nodes:InvertNode').__name__ == 'InvertNode'
+
+
+def test_unknown_parameter_is_an_error(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    import rclpy
+    from rclpy.context import Context
+
+    from depth_nodes.ros.graph import instantiate
+
+    ctx = Context()
+    rclpy.init(args=[], context=ctx)
+    try:
+        spec = NodeSpec('invert', 'harness_nodes:InvertNode', '/cam', {'ofset': 3})
+        with pytest.raises(ConfigError, match=r"/cam/invert .* has no parameter ofset "
+                                              r"\(parameters: offset"):
+            instantiate(spec, spec.parameters, context=ctx)
+        node = instantiate(NodeSpec('invert', 'harness_nodes:InvertNode', '/cam'),
+                           {'offset': 3}, context=ctx)
+        assert node.get_parameter('offset').value == 3
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

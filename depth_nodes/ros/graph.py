@@ -161,6 +161,15 @@ def parameters_for(spec: NodeSpec, params: dict[str, dict[str, Any]]) -> dict[st
     return merged
 
 
+def addressed_parameters(spec: NodeSpec, params: dict[str, dict[str, Any]]) -> set[str]:
+    """Names set for this node in particular (not through ``/**``): these must exist."""
+    fq = spec.fully_qualified_name
+    names = set(spec.parameters)
+    for key in (spec.name, fq.lstrip('/'), fq):
+        names.update(params.get(key, {}))
+    return names
+
+
 def resolve_plugin(plugin: str) -> type:
     """Return the node class for a plugin name or a ``module:Class`` path.
 
@@ -183,11 +192,21 @@ def resolve_plugin(plugin: str) -> type:
     return cls
 
 
-def instantiate(spec: NodeSpec, params: dict[str, Any], **node_kwargs: Any) -> Any:
+def instantiate(spec: NodeSpec, params: dict[str, Any], *, required: set[str] | None = None,
+                **node_kwargs: Any) -> Any:
     """Create the node described by ``spec`` with ``params`` (and extra Node kwargs).
 
+    Args:
+        spec: The node.
+        params: Parameter values to start it with.
+        required: Names that the node must declare (those addressed to it in particular);
+            rclpy would silently ignore an undeclared one, so a typo raises instead.
+            Default: every name in ``params``.
+        **node_kwargs: Passed to the node (e.g. ``context``).
+
     Raises:
-        ConfigError: The plugin cannot be resolved or a parameter value has no ROS type.
+        ConfigError: The plugin cannot be resolved, a parameter value has no ROS type, or
+            a required parameter is not declared by the node.
     """
     cls = resolve_plugin(spec.plugin)
     if not (isinstance(cls, type) and issubclass(cls, DepthNode)):
@@ -202,10 +221,19 @@ def instantiate(spec: NodeSpec, params: dict[str, Any], **node_kwargs: Any) -> A
     cli_args = ['--ros-args']
     for src, dst in spec.remappings.items():
         cli_args += ['-r', f'{src}:={dst}']
-    return cls(
+    node = cls(
         node_name=spec.name,
         namespace=spec.namespace,
         parameter_overrides=overrides,
         cli_args=cli_args,
         **node_kwargs,
     )
+    required = set(params) if required is None else required
+    unknown = sorted(name for name in required if not node.has_parameter(name))
+    if unknown:  # rclpy would ignore them: a typo must not pass silently
+        known = ', '.join(sorted(n for n in node.get_parameters_by_prefix('')
+                                 if not n.startswith('qos_overrides')))
+        node.destroy_node()
+        raise ConfigError(f'node {spec.fully_qualified_name} ({spec.plugin}) has no parameter '
+                          f'{", ".join(unknown)} (parameters: {known})')
+    return node

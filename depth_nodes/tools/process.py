@@ -21,6 +21,7 @@ from rclpy.context import Context
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.graph import (
     GraphConfig,
+    addressed_parameters,
     instantiate,
     load_graph_config,
     load_params_file,
@@ -164,7 +165,9 @@ def process_bag(
     nodes: list[Any] = []
     try:
         for spec in config.nodes:
-            nodes.append(instantiate(spec, parameters_for(spec, params), context=context))
+            nodes.append(instantiate(spec, parameters_for(spec, params),
+                                     required=addressed_parameters(spec, params),
+                                     context=context))
         report.nodes = [n.get_fully_qualified_name() for n in nodes]
         routes: dict[str, list[Any]] = {}
         produced: set[str] = set()
