@@ -16,6 +16,7 @@ PACKAGE = 'depth_nodes'
 NODE_SCRIPTS = [
     'rectify = depth_nodes.nodes.rectify:main',
     'sgm_stereo = depth_nodes.nodes.sgm_stereo:main',
+    'cross_check = depth_nodes.nodes.cross_check:main',
     'point_cloud = depth_nodes.nodes.point_cloud:main',
     'structured_light = depth_nodes.nodes.structured_light:main',
 ]

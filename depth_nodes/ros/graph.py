@@ -34,6 +34,7 @@ from depth_nodes.ros.node import DepthNode
 NODE_PLUGINS: dict[str, str] = {
     'rectify': 'depth_nodes.nodes.rectify:RectifyNode',
     'sgm_stereo': 'depth_nodes.nodes.sgm_stereo:SgmStereoNode',
+    'cross_check': 'depth_nodes.nodes.cross_check:CrossCheckNode',
     'point_cloud': 'depth_nodes.nodes.point_cloud:PointCloudNode',
     'structured_light': 'depth_nodes.nodes.structured_light:StructuredLightNode',
 }

@@ -128,6 +128,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     elif args.stage == 'sgm':
         print(bench_sgm(repeats=args.frames or 10, disparities=args.disparities,
                         paths=args.paths).format())
+    elif args.stage == 'cross_check':
+        from depth_nodes.tools.bench_cross_check import bench_cross_check
+
+        print(bench_cross_check(repeats=args.frames or 20).format())
     elif args.stage == 'point_cloud':
         from depth_nodes.tools.bench_point_cloud import bench_point_cloud
 
@@ -197,7 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
     evsl.set_defaults(func=_cmd_eval_sl)
 
     bench = sub.add_parser('bench', help='speed figures beside OpenCV, measured in one run')
-    bench.add_argument('stage', choices=['rectify', 'sgm', 'point_cloud', 'structured_light'],
+    bench.add_argument('stage', choices=['rectify', 'sgm', 'cross_check', 'point_cloud',
+                                         'structured_light'],
                        help='what to time')
     bench.add_argument('--bag', help='structured_light: the bag to time (default: bundled)')
     bench.add_argument('--width', type=int, default=640, help='rectify: frame width')

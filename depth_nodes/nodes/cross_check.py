@@ -1,0 +1,170 @@
+"""Cross-check node: left-right consistency, speckle removal, hole filling and confidence.
+
+Subscribes ``disparity`` (stereo_msgs/DisparityImage, left view), ``disparity_right``
+(DisparityImage in the right view: x_left = x_right + d) and ``cost_ratio``
+(sensor_msgs/Image 32FC1, best / second-best aggregated cost of the left winner), the three
+outputs of the sgm_stereo node, matched by exact stamp (``approximate_sync`` for the
+ApproximateTime policy). Publishes, with the left disparity's header:
+
+* ``disparity_checked``: DisparityImage with the input's ``f``, ``t``, ``min_disparity``,
+  ``max_disparity``, ``delta_d`` and ``valid_window``; pixels that fail the left-right
+  check or belong to a speckle are invalid (stored below ``min_disparity``), unless
+  ``fill_holes`` fills them.
+* ``confidence``: 32FC1 in [0, 1], same size and header: the pooled cost distinctiveness
+  times the left-right agreement, 0 on invalid pixels, low on filled ones.
+
+The algorithm lives in :mod:`depth_nodes.core.cross_check`. Parameters (all but the
+synchronisation ones change at runtime and apply from the next frame): ``disp12_max_diff``,
+``speckle_size``, ``speckle_range``, ``fill_holes``, ``confidence_window``,
+``filled_confidence``.
+
+Frames without output are counted and logged with a reason: ``disparity_encoding`` (a
+DisparityImage not 32FC1), ``unsupported_encoding`` (cost_ratio not 32FC1),
+``malformed_image``, ``size_mismatch`` (the three inputs differ in size),
+``range_mismatch`` (the two views' disparity windows differ), ``sync_*``.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import Image
+from stereo_msgs.msg import DisparityImage
+
+from depth_nodes.core.cross_check import cross_check
+from depth_nodes.errors import MessageError
+from depth_nodes.ros.disparity import build_disparity, read_disparity
+from depth_nodes.ros.image import array_to_image, image_to_array
+from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.params import NodeParameters, ParamSpec
+
+
+def _odd(value: int) -> str | None:
+    return None if value % 2 == 1 else 'must be odd'
+
+
+def _pixels(low: float, high: float) -> Any:
+    """Check of a px value given as an int (stereo_image_proc's type) or a double."""
+    def check(value: Any) -> str | None:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return 'must be a number (integer or double)'
+        return None if low <= value <= high else f'must be in [{low:g}, {high:g}]'
+    return check
+
+
+PARAMETERS = [
+    ParamSpec('queue_size', 5, 'Synchroniser queue of the three inputs', 1, 1000,
+              read_only=True),
+    ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
+              'instead of exact stamps', read_only=True),
+    ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
+              'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
+    ParamSpec('disp12_max_diff', 1.0, 'Largest |d_left - d_right| in px of a consistent '
+              'pixel (left-right check), in [0.05, 64]; integer or double',
+              dynamic_typing=True, check=_pixels(0.05, 64.0)),
+    ParamSpec('speckle_size', 100, 'Largest area in px of a disparity region removed as a '
+              'speckle (0: off)', 0, 100000),
+    ParamSpec('speckle_range', 2.0, 'Largest disparity step in px within one region of '
+              'the speckle filter, in [0, 64]; integer or double', dynamic_typing=True,
+              check=_pixels(0.0, 64.0)),
+    ParamSpec('fill_holes', False, 'Fill occlusions from the background and mismatches '
+              'from their neighbourhood (filled pixels get low confidence)'),
+    ParamSpec('confidence_window', 9, 'Odd side of the box the cost measure is pooled '
+              'over (1: no pooling)', 1, 31, check=_odd),
+    ParamSpec('filled_confidence', 0.1, 'Confidence factor of filled pixels', 0.0, 1.0),
+]
+
+
+def _disparity(msg: Any, name: str, node: DepthNode) -> Any:
+    if msg.image.encoding != '32FC1':
+        node.drop('disparity_encoding', f'{name} image encoding must be 32FC1, got '
+                  f'{msg.image.encoding!r}')
+        return None
+    try:
+        return read_disparity(msg)
+    except MessageError as exc:
+        node.drop('malformed_image', f'{name}: {exc}')
+        return None
+
+
+class CrossCheckNode(DepthNode):
+    """Left-right check of SGM's two views; publishes ``disparity_checked`` and
+    ``confidence``."""
+
+    def __init__(self, node_name: str = 'cross_check', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.params = NodeParameters(self, PARAMETERS)
+        values = self.params.values
+        self.pub_disparity = self.add_output(DisparityImage, 'disparity_checked')
+        self.pub_confidence = self.add_output(Image, 'confidence')
+        tolerance = values['approximate_sync_tolerance_seconds']
+        self.add_synced_inputs(
+            [(DisparityImage, 'disparity'), (DisparityImage, 'disparity_right'),
+             (Image, 'cost_ratio')],
+            self.on_frame, queue_size=values['queue_size'],
+            approximate=values['approximate_sync'], max_interval=tolerance or None)
+
+    def _cost_ratio(self, msg: Image, shape: tuple[int, int]) -> Any:
+        if msg.encoding != '32FC1':
+            self.drop('unsupported_encoding', f'cost_ratio encoding must be 32FC1, got '
+                      f'{msg.encoding!r}')
+            return None
+        if (msg.height, msg.width) != shape:
+            self.drop('size_mismatch', f'cost_ratio is {msg.width}x{msg.height}, disparity '
+                      f'{shape[1]}x{shape[0]}')
+            return None
+        try:
+            return image_to_array(msg)
+        except MessageError as exc:
+            self.drop('malformed_image', f'cost_ratio: {exc}')
+            return None
+
+    def on_frame(self, disparity_msg: DisparityImage, right_msg: DisparityImage,
+                 cost_msg: Image) -> None:
+        """Check one synchronised set and publish ``disparity_checked`` and ``confidence``."""
+        values: Mapping[str, Any] = self.params.values
+        left = _disparity(disparity_msg, 'disparity', self)
+        if left is None:
+            return
+        right = _disparity(right_msg, 'disparity_right', self)
+        if right is None:
+            return
+        shape = left.disparity.shape
+        if right.disparity.shape != shape:
+            self.drop('size_mismatch', f'disparity_right is {right.disparity.shape[1]}x'
+                      f'{right.disparity.shape[0]}, disparity {shape[1]}x{shape[0]}')
+            return
+        if (right.min_disparity, right.max_disparity) != (left.min_disparity,
+                                                          left.max_disparity):
+            self.drop('range_mismatch', f'disparity_right searched {right.min_disparity:g}..'
+                      f'{right.max_disparity:g}, disparity {left.min_disparity:g}..'
+                      f'{left.max_disparity:g}')
+            return
+        ratio = self._cost_ratio(cost_msg, shape)
+        if ratio is None:
+            return
+        result = cross_check(
+            left.disparity, right.disparity, ratio,
+            disp12_max_diff=values['disp12_max_diff'], speckle_size=values['speckle_size'],
+            speckle_range=values['speckle_range'], fill=values['fill_holes'],
+            confidence_window=values['confidence_window'],
+            filled_confidence=values['filled_confidence'])
+        header = disparity_msg.header
+        self.pub_disparity.publish(build_disparity(
+            result.disparity, header, focal=left.focal, baseline=left.baseline,
+            min_disparity=left.min_disparity, max_disparity=left.max_disparity,
+            delta_d=left.delta_d, valid_window=left.valid_window))
+        self.pub_confidence.publish(array_to_image(
+            np.ascontiguousarray(result.confidence, np.float32), '32FC1', header))
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console script ``cross_check`` (``ros2 run depth_nodes cross_check``)."""
+    sys.exit(run_node(CrossCheckNode, args))
+
+
+if __name__ == '__main__':
+    main()

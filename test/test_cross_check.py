@@ -1,0 +1,263 @@
+"""The cross-check core: left-right labels against a scene with exact occlusions, the
+numba kernels against their plain references, speckles, hole filling and confidence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from depth_nodes.core.cross_check import (
+    INVALID,
+    MISMATCH,
+    OCCLUDED,
+    SPECKLE,
+    VALID,
+    confidence_map,
+    cross_check,
+    fill_holes,
+    fill_holes_reference,
+    left_right_check,
+    left_right_check_reference,
+    remove_speckles,
+)
+
+H, W = 40, 120
+BACK, FRONT = 8.0, 20.0
+X0, X1 = 50, 80  # the foreground box's columns in the left image, rows 10..29
+
+
+def scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact left and right disparity of a box (d 20) before a wall (d 8), and the left
+    occlusion mask: what the right camera cannot see.
+
+    The right view is rendered by z-buffering the left pixels at x - d (the nearer surface,
+    the larger d, wins); the wall behind the box's left edge is hidden from the right camera.
+    """
+    left = np.full((H, W), BACK, np.float32)
+    left[10:30, X0:X1] = FRONT
+    right = np.full((H, W), np.nan, np.float32)
+    for y in range(H):
+        for x in range(W):
+            d = left[y, x]
+            xr = int(x - d)
+            if 0 <= xr < W and not right[y, xr] >= d:
+                right[y, xr] = d
+    occluded = np.zeros((H, W), bool)
+    for y in range(H):
+        for x in range(W):
+            xr = int(x - left[y, x])
+            occluded[y, x] = not (0 <= xr < W) or right[y, xr] != left[y, x]
+    return left, right, occluded
+
+
+def test_scene_has_the_expected_occlusion() -> None:
+    _, right, occluded = scene()
+    # the box shifts 12 px more than the wall: 12 wall columns left of it are hidden
+    assert occluded[10:30, X0 - 12:X0].all()
+    assert not occluded[10:30, X0:].any()
+    assert occluded[:, :8].all()  # the wall's left border leaves the right image
+    assert np.isnan(right[:, W - 8:]).all()  # nothing of the left image lands there
+
+
+def test_left_right_labels_match_the_geometry() -> None:
+    left, right, occluded = scene()
+    estimate = left.copy()
+    estimate[0, 0] = np.nan
+    estimate[35, 100:104] = BACK + 3.0  # wrong, and the right view there sees d 8: mismatch
+    check = left_right_check(estimate, right, max_diff=1.0)
+    assert check.labels[0, 0] == INVALID
+    assert (check.labels[35, 100:104] == MISMATCH).all()
+    np.testing.assert_allclose(check.difference[35, 100:104], 3.0)
+    rest = np.ones((H, W), bool)
+    rest[0, 0] = False
+    rest[35, 100:104] = False
+    assert (check.labels[rest & occluded] == OCCLUDED).all()
+    assert (check.labels[rest & ~occluded] == VALID).all()
+    assert (check.difference[rest & ~occluded] == 0).all()
+
+
+def test_threshold_is_inclusive() -> None:
+    left, right, _ = scene()
+    estimate = left + np.float32(1.0)  # off by exactly disp12_max_diff: still consistent
+    labels = left_right_check(estimate, right, max_diff=1.0).labels
+    assert (labels[20:, 100:] == VALID).all()
+    labels = left_right_check(estimate, right, max_diff=0.5).labels
+    assert (labels[20:, 100:] == MISMATCH).all()
+
+
+class TestKernelsAgainstReferences:
+    """Both numba kernels against the plain implementations, on random maps with holes."""
+
+    @pytest.mark.parametrize('seed', [0, 1, 2])
+    def test_left_right(self, seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        left = rng.uniform(0, 30, (23, 57)).astype(np.float32)
+        right = rng.uniform(0, 30, (23, 57)).astype(np.float32)
+        left[rng.random(left.shape) < 0.1] = np.nan
+        right[rng.random(right.shape) < 0.1] = np.nan
+        left[0, :3] = [0.5, 1.5, 2.5]  # rounding half-way: floor(x - d + 0.5)
+        for max_diff in (0.0, 1.0, 4.5):
+            got = left_right_check(left, right, max_diff=max_diff)
+            diff, labels = left_right_check_reference(left, right, max_diff)
+            np.testing.assert_array_equal(got.labels, labels)
+            np.testing.assert_array_equal(got.difference, diff)
+
+    @pytest.mark.parametrize('seed', [0, 1, 2])
+    def test_fill(self, seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        disp = rng.uniform(0, 30, (19, 31)).astype(np.float32)
+        labels = rng.choice(np.array([VALID, INVALID, OCCLUDED, MISMATCH, SPECKLE], np.uint8),
+                            disp.shape, p=[0.5, 0.1, 0.15, 0.15, 0.1])
+        labels[3, :] = OCCLUDED  # a row without any valid pixel
+        got, filled = fill_holes(disp, labels)
+        valid = labels == VALID
+        expected = fill_holes_reference(disp, valid, labels)
+        np.testing.assert_array_equal(got, expected)
+        np.testing.assert_array_equal(filled, ~valid & np.isfinite(expected))
+        assert np.isnan(got[labels == INVALID]).all()
+
+
+def test_occlusions_fill_from_the_background() -> None:
+    left, right, occluded = scene()
+    estimate = left.copy()
+    estimate[occluded] = FRONT  # what a matcher typically guesses there: the foreground
+    labels = left_right_check(estimate, right, max_diff=1.0).labels
+    filled, mask = fill_holes(estimate, labels)
+    band = np.zeros((H, W), bool)
+    band[10:30, X0 - 12:X0] = True
+    assert mask[band].all()
+    np.testing.assert_array_equal(filled[band], BACK)  # the wall, not the box
+
+
+def test_mismatches_fill_from_the_neighbourhood() -> None:
+    left, right, _ = scene()
+    estimate = left.copy()
+    estimate[33:36, 100:103] = 14.0  # too far: the right view there sees 8, a mismatch
+    labels = left_right_check(estimate, right, max_diff=1.0).labels
+    assert (labels[33:36, 100:103] == MISMATCH).all()
+    filled, mask = fill_holes(estimate, labels)
+    np.testing.assert_array_equal(filled[33:36, 100:103], BACK)
+    assert mask[33:36, 100:103].all()
+    estimate[33:36, 100:103] = 2.0  # too near: the right view at x - 2 sees the nearer wall
+    labels = left_right_check(estimate, right, max_diff=1.0).labels
+    assert (labels[33:36, 100:103] == OCCLUDED).all()  # the standard rule
+
+
+def test_speckles_are_removed_and_regions_kept() -> None:
+    disp = np.full((H, W), 10.0, np.float32)
+    disp[5:8, 5:8] = 30.0  # 9 px island: a speckle
+    disp[15:35, 20:60] = 25.0  # 800 px region: kept
+    disp[2, 100] = np.nan
+    removed = remove_speckles(disp, max_size=50, max_diff=2.0)
+    assert removed[5:8, 5:8].all()
+    assert removed.sum() == 9
+    assert not remove_speckles(disp, max_size=0, max_diff=2.0).any()
+    # within speckle_range the island joins the wall
+    disp[5:8, 5:8] = 11.5
+    assert not remove_speckles(disp, max_size=50, max_diff=2.0).any()
+    # sub-pixel steps survive the fixed-point copy: 1/16 px resolution
+    disp[5:8, 5:8] = 12.25
+    assert remove_speckles(disp, max_size=50, max_diff=2.0)[5:8, 5:8].all()
+    assert not remove_speckles(disp, max_size=50, max_diff=2.25).any()
+
+
+def test_speckles_of_a_wide_range() -> None:
+    """Disparities over thousands of px do not overflow the int16 copy."""
+    disp = np.full((20, 20), 3000.0, np.float32)
+    disp[0, 0] = -1000.0
+    disp[5:7, 5:7] = 3010.0
+    removed = remove_speckles(disp, max_size=10, max_diff=2.0)
+    assert removed[5:7, 5:7].all()
+    assert removed[0, 0]
+    assert removed.sum() == 5
+
+
+def test_confidence_is_monotone_and_bounded() -> None:
+    ratio = np.tile(np.linspace(0.0, 1.0, 11, dtype=np.float32), (11, 1))
+    diff = np.tile(np.linspace(0.0, 3.0, 11, dtype=np.float32)[:, None], (1, 11))
+    valid = np.ones(ratio.shape, bool)
+    valid[0, 0] = False
+    conf = confidence_map(ratio, diff, valid, window=1, max_diff=1.0)
+    assert conf.dtype == np.float32
+    assert conf.shape == ratio.shape
+    assert conf.min() >= 0
+    assert conf.max() <= 1
+    assert conf[0, 0] == 0
+    assert conf[0, 1] == pytest.approx(0.9)  # diff 0: the cost term alone
+    assert (np.diff(conf[1:, 1:-1], axis=1) < 0).all()  # more ambiguous, less confident
+    assert (np.diff(conf[1:, 1:-1], axis=0) < 0).all()  # less consistent, less confident
+    assert conf[:, -1].max() == 0  # cost ratio 1: no information
+    assert conf[5, 1] == pytest.approx(0.9 / (1 + 1.5**2), rel=1e-6)
+    filled = np.zeros(ratio.shape, bool)
+    filled[0, 0] = True
+    conf = confidence_map(ratio, diff, valid & ~filled, window=1, filled=filled,
+                          filled_confidence=0.1)
+    assert conf[0, 0] == pytest.approx(0.1)
+    nan = confidence_map(np.full((3, 3), np.nan, np.float32), np.full((3, 3), np.nan,
+                                                                        np.float32),
+                         np.ones((3, 3), bool), window=3)
+    assert (nan == 0).all()
+
+
+def test_pooling_spreads_ambiguity() -> None:
+    ratio = np.zeros((9, 9), np.float32)
+    ratio[4, 4] = 1.0
+    diff = np.zeros_like(ratio)
+    conf = confidence_map(ratio, diff, np.ones((9, 9), bool), window=3)
+    assert conf[4, 4] == pytest.approx(8 / 9)
+    assert conf[3, 3] == pytest.approx(8 / 9)
+    assert conf[0, 0] == 1.0
+
+
+def test_cross_check_on_a_noisy_estimate() -> None:
+    """End to end: consistent pixels kept, occlusions and a wrong speckle dropped, and the
+    confidence ranks the kept pixels above the dropped ones."""
+    rng = np.random.default_rng(3)
+    left, right, occluded = scene()
+    estimate = left + rng.normal(0, 0.2, left.shape).astype(np.float32)
+    estimate[occluded] = FRONT
+    estimate[33:36, 100:103] = 14.0
+    ratio = rng.uniform(0.0, 0.5, left.shape).astype(np.float32)
+    result = cross_check(estimate, right, ratio, speckle_size=20, speckle_range=1.0)
+    kept = np.isfinite(result.disparity)
+    assert not kept[occluded].any()
+    assert not kept[33:36, 100:103].any()
+    assert kept[~occluded].mean() > 0.95
+    assert (np.abs(result.disparity[kept] - left[kept]) < 1.0).all()
+    assert (result.confidence[~kept] == 0).all()
+    assert (result.confidence[kept] > 0).all()
+    assert not result.filled.any()
+    filled = cross_check(estimate, right, ratio, speckle_size=20, speckle_range=1.0,
+                         fill=True)
+    assert np.isfinite(filled.disparity[10:30, X0 - 12:X0]).all()
+    assert (filled.confidence[filled.filled] <= 0.1).all()
+    assert np.abs(filled.disparity[10:30, X0 - 12:X0] - BACK).max() < 1.0
+
+
+@pytest.mark.parametrize(('call', 'message'), [
+    (lambda: left_right_check(np.zeros(5, np.float32), np.zeros(5, np.float32)),
+     r'disparity must be a \(H, W\) array'),
+    (lambda: left_right_check(np.zeros((4, 5), np.float32), np.zeros((4, 6), np.float32)),
+     'disparity_right must have the disparity shape'),
+    (lambda: left_right_check(np.zeros((4, 5), np.int16), np.zeros((4, 5), np.float32)),
+     'disparity must be a float array'),
+    (lambda: left_right_check(np.zeros((4, 5)), np.zeros((4, 5)), max_diff=-1),
+     'max_diff must be a finite number >= 0'),
+    (lambda: remove_speckles(np.zeros((4, 5)), max_size=-1, max_diff=1),
+     'max_size must be an int >= 0'),
+    (lambda: fill_holes(np.zeros((4, 5)), np.zeros((4, 5), np.int32)),
+     'labels must be a uint8 array'),
+    (lambda: confidence_map(np.zeros((4, 5)), np.zeros((4, 5)), np.ones((4, 5), bool),
+                            window=4), 'window must be an odd int'),
+    (lambda: confidence_map(np.zeros((4, 5)), np.zeros((4, 5)), np.ones((4, 5)), window=3),
+     'valid must be a bool array'),
+    (lambda: confidence_map(np.zeros((4, 5)), np.zeros((4, 5)), np.ones((4, 5), bool),
+                            max_diff=0), 'max_diff must be > 0'),
+    (lambda: confidence_map(np.zeros((4, 5)), np.zeros((4, 5)), np.ones((4, 5), bool),
+                            filled_confidence=2.0), 'filled_confidence must be in'),
+    (lambda: cross_check(np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((3, 5))),
+     'cost_ratio must have the disparity shape'),
+])
+def test_misuse_names_the_argument(call: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        call()  # type: ignore[operator]
