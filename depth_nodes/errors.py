@@ -25,6 +25,10 @@ class CalibrationError(DepthNodesError):
     """A camera calibration that cannot be used (zero or non-finite K, wrong D length...)."""
 
 
+class UncalibratedError(CalibrationError):
+    """A CameraInfo whose K is all zero: the driver publishes no calibration."""
+
+
 class SyncError(DepthNodesError):
     """A synchroniser was used wrongly (bad queue size, unknown input index...)."""
 

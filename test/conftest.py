@@ -68,3 +68,30 @@ def set_parameters(peer: Any, executor: Any, node: str, **values: Any) -> list[S
     executor.spin_until_future_complete(future, timeout_sec=30)
     assert future.done(), f'{node}/set_parameters did not answer'
     return list(future.result().results)
+
+
+#: Disparity window per bundled stereo bag: 128 at 640 px, 64 on the 320 px ones (OpenCV is
+#: always given the same window as ours).
+STEREO_RANGES = {'stereo_vga': 128, 'stereo_qvga_color': 64, 'stereo_qvga_fisheye': 64}
+
+
+@pytest.fixture(scope='session')
+def stereo_reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Any]]:
+    """Every bundled stereo bag replayed once through the default pipeline
+    (rectify -> sgm_stereo -> cross_check -> point_cloud) and scored by eval:
+    ``{bag: (output bag, EvalReport)}``. Shared by the accuracy tests."""
+    from depth_nodes.ros.graph import load_graph_config
+    from depth_nodes.tools.evaluate import evaluate_bag
+    from depth_nodes.tools.process import process_bag
+
+    config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
+    out = {}
+    for name, disparities in STEREO_RANGES.items():
+        folder = tmp_path_factory.mktemp(name)
+        params = folder / 'params.yaml'
+        params.write_text(f'sgm_stereo:\n  ros__parameters: {{disparity_range: {disparities}}}\n')
+        report = process_bag(REPO / 'bags' / name, folder / 'out', config=config,
+                             params_file=params)
+        assert sum(sum(c.values()) for c in report.drops.values()) == 0, report.format()
+        out[name] = (folder / 'out', evaluate_bag(folder / 'out'))
+    return out

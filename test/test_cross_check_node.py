@@ -15,18 +15,16 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from conftest import REPO, set_parameters
+from conftest import STEREO_RANGES, set_parameters
 from depth_nodes.core.cross_check import cross_check
 from depth_nodes.core.metrics import sparsification_auc
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.nodes.cross_check import CrossCheckNode
 from depth_nodes.ros.disparity import build_disparity, read_disparity
-from depth_nodes.ros.graph import NodeSpec, load_graph_config
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.evaluate import EvalReport, evaluate_bag
-from depth_nodes.tools.process import process_bag
+from depth_nodes.tools.evaluate import EvalReport
 
 pytestmark = pytest.mark.ros
 
@@ -199,31 +197,17 @@ def test_bad_start_up_value_is_an_error(context: Context) -> None:
 # -- accuracy on the bundled bags ---------------------------------------------------------
 
 CHECKED, RAW = '/stereo/disparity_checked', '/stereo/disparity'
-#: 128 disparities at 640 px; 64 on the 320 px bags (as test_sgm_accuracy.py).
-RANGES = {'stereo_vga': 128, 'stereo_qvga_color': 64, 'stereo_qvga_fisheye': 64}
-#: The issue's target: sparsification AUC of the confidence at most twice the optimum.
+#: The issue's target for AUC / optimal AUC of the confidence map.
 AUC_TARGET = 2.0
 
 
-@pytest.fixture(scope='module')
-def reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, EvalReport]]:
-    config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
-    config.nodes = [n for n in config.nodes if n.plugin in ('rectify', 'sgm_stereo')]
-    config.nodes.append(NodeSpec('cross_check', 'depth_nodes.nodes.cross_check:CrossCheckNode',
-                                 '/stereo'))
-    out = {}
-    for name, disparities in RANGES.items():
-        folder = tmp_path_factory.mktemp(name)
-        params = folder / 'params.yaml'
-        params.write_text(f'sgm_stereo:\n  ros__parameters: {{disparity_range: {disparities}}}\n')
-        report = process_bag(REPO / 'bags' / name, folder / 'out', config=config,
-                             params_file=params)
-        assert sum(sum(c.values()) for c in report.drops.values()) == 0
-        out[name] = (folder / 'out', evaluate_bag(folder / 'out'))
-    return out
+@pytest.fixture
+def reports(stereo_reports: dict[str, tuple[Path, EvalReport]]
+            ) -> dict[str, tuple[Path, EvalReport]]:
+    return stereo_reports
 
 
-@pytest.mark.parametrize('bag', sorted(RANGES))
+@pytest.mark.parametrize('bag', sorted(STEREO_RANGES))
 def test_confidence_auc_and_checked_accuracy(reports: dict[str, tuple[Path, EvalReport]],
                                              bag: str) -> None:
     path, report = reports[bag]

@@ -14,36 +14,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import STEREO_RANGES
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.graph import load_graph_config
 from depth_nodes.ros.image import image_to_array
 from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.evaluate import EvalReport, evaluate_bag
-from depth_nodes.tools.process import process_bag
+from depth_nodes.tools.evaluate import EvalReport
 
 OURS = '/stereo/disparity'
-#: 128 disparities at 640 px; 64 on the 320 px bags (OpenCV is given the same window).
-RANGES = {'stereo_vga': 128, 'stereo_qvga_color': 64, 'stereo_qvga_fisheye': 64}
 
 
-@pytest.fixture(scope='module')
-def reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, EvalReport]]:
-    config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
-    out = {}
-    for name, disparities in RANGES.items():
-        folder = tmp_path_factory.mktemp(name)
-        params = folder / 'params.yaml'
-        params.write_text(f'sgm_stereo:\n  ros__parameters: {{disparity_range: {disparities}}}\n')
-        report = process_bag(REPO / 'bags' / name, folder / 'out', config=config,
-                             params_file=params)
-        assert sum(sum(c.values()) for c in report.drops.values()) == 0
-        out[name] = (folder / 'out', evaluate_bag(folder / 'out'))
-    return out
+@pytest.fixture
+def reports(stereo_reports: dict[str, tuple[Path, EvalReport]]
+            ) -> dict[str, tuple[Path, EvalReport]]:
+    return stereo_reports
 
 
-@pytest.mark.parametrize('bag', sorted(RANGES))
+@pytest.mark.parametrize('bag', sorted(STEREO_RANGES))
 def test_beats_opencv_dense_and_sparse(reports: dict[str, tuple[Path, EvalReport]],
                                        bag: str) -> None:
     rows = {r.method: r for r in reports[bag][1].rows}

@@ -35,14 +35,12 @@ import sys
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from depth_nodes.core.camera import StereoModel
 from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reproject_disparity
-from depth_nodes.errors import CalibrationError, MessageError
-from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.errors import CalibrationError, MessageError, UncalibratedError
+from depth_nodes.ros.camera_info import StereoInfoCache
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import array_to_image, image_to_array, to_rgb8
 from depth_nodes.ros.node import DepthNode, run_node
@@ -119,8 +117,7 @@ class PointCloudNode(DepthNode):
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
         values = self.params.values
-        self._stereo_key: tuple[Any, ...] | None = None
-        self._stereo: StereoModel
+        self._stereo = StereoInfoCache()
         self.use_color: bool = values['use_color']
         self.use_confidence: bool = values['use_confidence']
         self.pub_points = self.add_output(PointCloud2, 'points2')
@@ -143,18 +140,6 @@ class PointCloudNode(DepthNode):
         image = extra.pop(0) if self.use_color else None
         confidence = extra.pop(0) if self.use_confidence else None
         self.on_frame(disparity, left_info, right_info, image=image, confidence=confidence)
-
-    def _stereo_model(self, left_info: CameraInfo, right_info: CameraInfo) -> StereoModel:
-        """The stereo geometry, converted and validated only when a CameraInfo changes."""
-        key = tuple((m.width, m.height, m.distortion_model, tuple(m.k), tuple(m.d),
-                     tuple(m.r), tuple(m.p), m.binning_x, m.binning_y, m.roi.x_offset,
-                     m.roi.y_offset, m.roi.width, m.roi.height)
-                    for m in (left_info, right_info))
-        if key != self._stereo_key:
-            left, right = (camera_info_to_model(m).binned() for m in (left_info, right_info))
-            self._stereo = StereoModel(left, right)
-            self._stereo_key = key
-        return self._stereo
 
     def _colour(self, image: Image, shape: tuple[int, int]) -> Any:
         """(H, W, 3) uint8 RGB of ``image``, or None after counting the reason."""
@@ -203,12 +188,11 @@ class PointCloudNode(DepthNode):
             self.drop('malformed_image', f'disparity: {exc}')
             return
         shape = disparity.shape
-        if not np.any(np.asarray(left_info.k)) or not np.any(np.asarray(right_info.k)):
-            self.drop('uncalibrated', 'a camera_info has K all zero: the stereo pair is not '
-                      'calibrated')
-            return
         try:
-            stereo = self._stereo_model(left_info, right_info)
+            stereo = self._stereo.model(left_info, right_info)
+        except UncalibratedError as exc:
+            self.drop('uncalibrated', str(exc))
+            return
         except CalibrationError as exc:
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
             return

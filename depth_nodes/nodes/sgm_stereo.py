@@ -33,13 +33,12 @@ from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.core.baseline import SgbmSettings, opencv_sgbm
-from depth_nodes.core.camera import StereoModel
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, SUBPIXEL_STEP
-from depth_nodes.errors import CalibrationError, MessageError
-from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.errors import CalibrationError, MessageError, UncalibratedError
+from depth_nodes.ros.camera_info import StereoInfoCache
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
 from depth_nodes.ros.node import DepthNode, run_node
@@ -152,8 +151,7 @@ class SgmStereoNode(DepthNode):
         self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
         values = self.params.values
         self.matcher = SgmMatcher(sgm_params(values))
-        self._stereo_key: tuple[Any, ...] | None = None
-        self._stereo: StereoModel
+        self._stereo = StereoInfoCache()
         self.pub_disparity = self.add_output(DisparityImage, 'disparity')
         self.pub_disparity_right = self.add_output(DisparityImage, 'disparity_right')
         self.pub_cost_ratio = self.add_output(Image, 'cost_ratio')
@@ -163,17 +161,6 @@ class SgmStereoNode(DepthNode):
              (Image, 'right/image_rect'), (CameraInfo, 'right/camera_info')],
             self.on_frame, queue_size=values['queue_size'],
             approximate=values['approximate_sync'], max_interval=tolerance or None)
-
-    def _stereo_model(self, left_info: CameraInfo, right_info: CameraInfo) -> StereoModel:
-        """The stereo geometry, converted and validated only when a CameraInfo changes."""
-        key = tuple((m.width, m.height, m.distortion_model, tuple(m.k), tuple(m.d),
-                     tuple(m.r), tuple(m.p), m.binning_x, m.binning_y)
-                    for m in (left_info, right_info))
-        if key != self._stereo_key:
-            left, right = (camera_info_to_model(m).binned() for m in (left_info, right_info))
-            self._stereo = StereoModel(left, right)
-            self._stereo_key = key
-        return self._stereo
 
     def _grey_pair(self, left_msg: Image, right_msg: Image) -> tuple[Any, Any] | None:
         """Both images as grey arrays, or None after counting the reason."""
@@ -204,12 +191,11 @@ class SgmStereoNode(DepthNode):
         if pair is None:
             return
         left, right = pair
-        if not np.any(np.asarray(left_info.k)) or not np.any(np.asarray(right_info.k)):
-            self.drop('uncalibrated', 'a camera_info has K all zero: the stereo pair is not '
-                      'calibrated')
-            return
         try:
-            stereo = self._stereo_model(left_info, right_info)
+            stereo = self._stereo.model(left_info, right_info)
+        except UncalibratedError as exc:
+            self.drop('uncalibrated', str(exc))
+            return
         except CalibrationError as exc:
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
             return

@@ -13,7 +13,7 @@ from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from depth_nodes.core.camera import CameraModel, StereoModel
-from depth_nodes.errors import CalibrationError
+from depth_nodes.errors import CalibrationError, UncalibratedError
 
 
 def _matrix(msg: Any, name: str, size: int) -> np.ndarray:
@@ -110,3 +110,39 @@ def stereo_model_from_infos(left_msg: Any, right_msg: Any) -> StereoModel:
     left = camera_info_to_model(left_msg).binned()
     right = camera_info_to_model(right_msg).binned()
     return StereoModel(left, right)
+
+
+def _info_key(msg: Any) -> tuple[Any, ...]:
+    """Everything of a CameraInfo that the camera model depends on, hashable."""
+    return (msg.width, msg.height, msg.distortion_model, tuple(msg.k), tuple(msg.d),
+            tuple(msg.r), tuple(msg.p), msg.binning_x, msg.binning_y, msg.roi.x_offset,
+            msg.roi.y_offset, msg.roi.width, msg.roi.height)
+
+
+class StereoInfoCache:
+    """The stereo model of a left/right CameraInfo pair, converted and validated again only
+    when either message's content changes (drivers resend the same calibration every frame).
+
+    Models are those of the delivered images (binning and ROI applied).
+    """
+
+    def __init__(self) -> None:
+        self._key: tuple[Any, ...] | None = None
+        self._model: StereoModel | None = None
+
+    def model(self, left_msg: Any, right_msg: Any) -> StereoModel:
+        """The StereoModel of the pair.
+
+        Raises:
+            UncalibratedError: A K is all zero.
+            CalibrationError: Anything else makes the pair unusable.
+        """
+        key = (_info_key(left_msg), _info_key(right_msg))
+        if key != self._key or self._model is None:
+            if not np.any(np.asarray(left_msg.k)) or not np.any(np.asarray(right_msg.k)):
+                raise UncalibratedError('a camera_info has K all zero: the stereo pair is not '
+                                        'calibrated')
+            left, right = (camera_info_to_model(m).binned() for m in (left_msg, right_msg))
+            self._model = StereoModel(left, right)
+            self._key = key
+        return self._model
