@@ -10,8 +10,9 @@ from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from depth_nodes.core.camera import CameraModel
-from depth_nodes.errors import CalibrationError
+from depth_nodes.errors import CalibrationError, UncalibratedError
 from depth_nodes.ros.camera_info import (
+    StereoInfoCache,
     camera_info_to_model,
     model_to_camera_info,
     stereo_model_from_infos,
@@ -98,3 +99,21 @@ def test_stereo_from_infos_rejects_mismatch() -> None:
 def test_empty_message_is_uncalibrated() -> None:
     with pytest.raises(CalibrationError, match='image size must be positive, got 0x0'):
         camera_info_to_model(CameraInfo())
+
+
+def test_stereo_cache_converts_only_on_change() -> None:
+    cache = StereoInfoCache()
+    left = model_to_camera_info(_model())
+    right = model_to_camera_info(_model(tx=-F * B))
+    first = cache.model(left, right)
+    assert first.baseline == pytest.approx(B)
+    assert cache.model(model_to_camera_info(_model()), right) is first  # same content
+    right.p[3] = -F * 2 * B
+    second = cache.model(left, right)
+    assert second is not first
+    assert second.baseline == pytest.approx(2 * B)
+    uncalibrated = model_to_camera_info(_model(K=np.zeros((3, 3))))
+    with pytest.raises(UncalibratedError, match='K all zero'):
+        cache.model(uncalibrated, right)
+    right.p[3] = -F * B  # the next good pair is used again
+    assert cache.model(left, right).baseline == pytest.approx(B)

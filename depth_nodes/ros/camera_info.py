@@ -142,7 +142,6 @@ class StereoInfoCache:
             if not np.any(np.asarray(left_msg.k)) or not np.any(np.asarray(right_msg.k)):
                 raise UncalibratedError('a camera_info has K all zero: the stereo pair is not '
                                         'calibrated')
-            left, right = (camera_info_to_model(m).binned() for m in (left_msg, right_msg))
-            self._model = StereoModel(left, right)
+            self._model = stereo_model_from_infos(left_msg, right_msg)
             self._key = key
         return self._model
