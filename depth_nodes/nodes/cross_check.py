@@ -37,7 +37,7 @@ from stereo_msgs.msg import DisparityImage
 from depth_nodes.core.cross_check import cross_check
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity, read_disparity
-from depth_nodes.ros.image import array_to_image, image_to_array
+from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 
@@ -107,21 +107,6 @@ class CrossCheckNode(DepthNode):
             self.on_frame, queue_size=values['queue_size'],
             approximate=values['approximate_sync'], max_interval=tolerance or None)
 
-    def _cost_ratio(self, msg: Image, shape: tuple[int, int]) -> Any:
-        if msg.encoding != '32FC1':
-            self.drop('unsupported_encoding', f'cost_ratio encoding must be 32FC1, got '
-                      f'{msg.encoding!r}')
-            return None
-        if (msg.height, msg.width) != shape:
-            self.drop('size_mismatch', f'cost_ratio is {msg.width}x{msg.height}, disparity '
-                      f'{shape[1]}x{shape[0]}')
-            return None
-        try:
-            return image_to_array(msg)
-        except MessageError as exc:
-            self.drop('malformed_image', f'cost_ratio: {exc}')
-            return None
-
     def on_frame(self, disparity_msg: DisparityImage, right_msg: DisparityImage,
                  cost_msg: Image) -> None:
         """Check one synchronised set and publish ``disparity_checked`` and ``confidence``."""
@@ -143,7 +128,7 @@ class CrossCheckNode(DepthNode):
                       f'{right.max_disparity:g}, disparity {left.min_disparity:g}..'
                       f'{left.max_disparity:g}')
             return
-        ratio = self._cost_ratio(cost_msg, shape)
+        ratio = self.frame_image(cost_msg, 'cost_ratio', shape, ('32FC1',))
         if ratio is None:
             return
         result = cross_check(

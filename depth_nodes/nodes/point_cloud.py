@@ -42,7 +42,7 @@ from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reprojec
 from depth_nodes.errors import CalibrationError, MessageError, UncalibratedError
 from depth_nodes.ros.camera_info import StereoInfoCache
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.image import array_to_image, image_to_array, to_rgb8
+from depth_nodes.ros.image import array_to_image, to_rgb8
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 from depth_nodes.ros.pointcloud import build_pointcloud
@@ -141,38 +141,6 @@ class PointCloudNode(DepthNode):
         confidence = extra.pop(0) if self.use_confidence else None
         self.on_frame(disparity, left_info, right_info, image=image, confidence=confidence)
 
-    def _colour(self, image: Image, shape: tuple[int, int]) -> Any:
-        """(H, W, 3) uint8 RGB of ``image``, or None after counting the reason."""
-        if image.encoding not in COLOR_ENCODINGS:
-            self.drop('unsupported_encoding', f'colour image encoding {image.encoding!r} is '
-                      f'not one of {", ".join(COLOR_ENCODINGS)}')
-            return None
-        if (image.height, image.width) != shape:
-            self.drop('size_mismatch', f'colour image is {image.width}x{image.height}, '
-                      f'disparity {shape[1]}x{shape[0]}')
-            return None
-        try:
-            return to_rgb8(image_to_array(image), image.encoding)
-        except MessageError as exc:
-            self.drop('malformed_image', f'colour image: {exc}')
-            return None
-
-    def _confidence(self, image: Image, shape: tuple[int, int]) -> Any:
-        """(H, W) float32 confidence, or None after counting the reason."""
-        if image.encoding != '32FC1':
-            self.drop('unsupported_encoding', f'confidence encoding must be 32FC1, got '
-                      f'{image.encoding!r}')
-            return None
-        if (image.height, image.width) != shape:
-            self.drop('size_mismatch', f'confidence is {image.width}x{image.height}, '
-                      f'disparity {shape[1]}x{shape[0]}')
-            return None
-        try:
-            return image_to_array(image)
-        except MessageError as exc:
-            self.drop('malformed_image', f'confidence: {exc}')
-            return None
-
     def on_frame(self, disparity_msg: DisparityImage, left_info: CameraInfo,
                  right_info: CameraInfo, *, image: Image | None = None,
                  confidence: Image | None = None) -> None:
@@ -204,13 +172,14 @@ class PointCloudNode(DepthNode):
         if self.use_color:
             if image is None:
                 raise ValueError('use_color is true: on_frame needs the colour image')
-            rgb = self._colour(image, shape)
-            if rgb is None:
+            pixels = self.frame_image(image, 'colour image', shape, COLOR_ENCODINGS)
+            if pixels is None:
                 return
+            rgb = to_rgb8(pixels, image.encoding)
         if self.use_confidence:
             if confidence is None:
                 raise ValueError('use_confidence is true: on_frame needs the confidence')
-            conf = self._confidence(confidence, shape)
+            conf = self.frame_image(confidence, 'confidence', shape, ('32FC1',))
             if conf is None:
                 return
         result = reproject_disparity(

@@ -26,7 +26,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
-from depth_nodes.errors import DepthNodesError
+from depth_nodes.errors import DepthNodesError, MessageError
+from depth_nodes.ros.image import image_to_array
 from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchronizer
 
 #: Publishers keep this many messages by default (reliable, volatile).
@@ -161,6 +162,29 @@ class DepthNode(Node):
         for index, (msg_type, topic) in enumerate(inputs):
             topics.append(self.add_input(msg_type, topic, feed(index)))
         return sync
+
+    def frame_image(self, msg: Any, what: str, shape: tuple[int, ...],
+                    encodings: tuple[str, ...]) -> Any:
+        """The pixels of an input image that must fit the frame being processed.
+
+        Returns:
+            The array (see ``image_to_array``), or None after counting the drop:
+            ``unsupported_encoding`` (not one of ``encodings``), ``size_mismatch`` (not
+            ``shape`` = (height, width)) or ``malformed_image``.
+        """
+        if msg.encoding not in encodings:
+            self.drop('unsupported_encoding', f'{what} encoding {msg.encoding!r} is not '
+                      f'{" or ".join(encodings)}')
+            return None
+        if (msg.height, msg.width) != tuple(shape[:2]):
+            self.drop('size_mismatch', f'{what} is {msg.width}x{msg.height}, the frame '
+                      f'{shape[1]}x{shape[0]}')
+            return None
+        try:
+            return image_to_array(msg)
+        except MessageError as exc:
+            self.drop('malformed_image', f'{what}: {exc}')
+            return None
 
     def drop(self, reason: str, detail: str) -> None:
         """Count a frame that produced no output, and log why (throttled per reason).

@@ -9,7 +9,6 @@ with hole filling, and SGM on the same pair.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,7 +43,6 @@ class CrossCheckBench:
 
 def bench_cross_check(repeats: int = 20) -> CrossCheckBench:
     """Time the cross-check of a 640x480 SGM result, beside SGM in the same run."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # node runs in-process
     import rclpy
     from rclpy.context import Context
 

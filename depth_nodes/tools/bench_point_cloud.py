@@ -8,7 +8,6 @@ and a 32FC1 depth image out, through the harness sink) and census SGM on the sam
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,7 +45,6 @@ class PointCloudBench:
 
 def bench_point_cloud(repeats: int = 20) -> PointCloudBench:
     """Time building a 640x480 colour cloud + depth image, beside SGM in the same run."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # node runs in-process
     import rclpy
     from rclpy.context import Context
 
