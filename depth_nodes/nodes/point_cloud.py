@@ -39,8 +39,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reproject_disparity
-from depth_nodes.errors import CalibrationError, MessageError, UncalibratedError
-from depth_nodes.ros.camera_info import StereoInfoCache
+from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import array_to_image, to_rgb8
 from depth_nodes.ros.node import DepthNode, run_node
@@ -117,7 +116,6 @@ class PointCloudNode(DepthNode):
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
         values = self.params.values
-        self._stereo = StereoInfoCache()
         self.use_color: bool = values['use_color']
         self.use_confidence: bool = values['use_confidence']
         self.pub_points = self.add_output(PointCloud2, 'points2')
@@ -156,13 +154,8 @@ class PointCloudNode(DepthNode):
             self.drop('malformed_image', f'disparity: {exc}')
             return
         shape = disparity.shape
-        try:
-            stereo = self._stereo.model(left_info, right_info)
-        except UncalibratedError as exc:
-            self.drop('uncalibrated', str(exc))
-            return
-        except CalibrationError as exc:
-            self.drop('bad_calibration', f'camera_info unusable: {exc}')
+        stereo = self.stereo_model(left_info, right_info)
+        if stereo is None:
             return
         if (stereo.left.height, stereo.left.width) != shape:
             self.drop('size_mismatch', f'disparity is {shape[1]}x{shape[0]} but camera_info '

@@ -37,8 +37,7 @@ from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, SUBPIXEL_STEP
-from depth_nodes.errors import CalibrationError, MessageError, UncalibratedError
-from depth_nodes.ros.camera_info import StereoInfoCache
+from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
 from depth_nodes.ros.node import DepthNode, run_node
@@ -151,7 +150,6 @@ class SgmStereoNode(DepthNode):
         self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
         values = self.params.values
         self.matcher = SgmMatcher(sgm_params(values))
-        self._stereo = StereoInfoCache()
         self.pub_disparity = self.add_output(DisparityImage, 'disparity')
         self.pub_disparity_right = self.add_output(DisparityImage, 'disparity_right')
         self.pub_cost_ratio = self.add_output(Image, 'cost_ratio')
@@ -191,13 +189,8 @@ class SgmStereoNode(DepthNode):
         if pair is None:
             return
         left, right = pair
-        try:
-            stereo = self._stereo.model(left_info, right_info)
-        except UncalibratedError as exc:
-            self.drop('uncalibrated', str(exc))
-            return
-        except CalibrationError as exc:
-            self.drop('bad_calibration', f'camera_info unusable: {exc}')
+        stereo = self.stereo_model(left_info, right_info)
+        if stereo is None:
             return
         h, w = left.shape
         if (stereo.left.width, stereo.left.height) != (w, h):

@@ -26,7 +26,9 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
-from depth_nodes.errors import DepthNodesError, MessageError
+from depth_nodes.core.camera import StereoModel
+from depth_nodes.errors import CalibrationError, DepthNodesError, MessageError, UncalibratedError
+from depth_nodes.ros.camera_info import StereoInfoCache
 from depth_nodes.ros.image import image_to_array
 from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchronizer
 
@@ -86,6 +88,7 @@ class DepthNode(Node):
         self.drops: Counter[str] = Counter()
         self.sink: Sink | None = None
         self._last_drop_log: dict[str, float] = {}
+        self._stereo_cache: StereoInfoCache | None = None
 
     def add_input(
         self,
@@ -185,6 +188,20 @@ class DepthNode(Node):
         except MessageError as exc:
             self.drop('malformed_image', f'{what}: {exc}')
             return None
+
+    def stereo_model(self, left_info: Any, right_info: Any) -> StereoModel | None:
+        """The stereo geometry of a CameraInfo pair (converted again only when one changes),
+        or None after counting the drop: ``uncalibrated`` (a K all zero) or
+        ``bad_calibration`` (anything else unusable)."""
+        if self._stereo_cache is None:
+            self._stereo_cache = StereoInfoCache()
+        try:
+            return self._stereo_cache.model(left_info, right_info)
+        except UncalibratedError as exc:
+            self.drop('uncalibrated', str(exc))
+        except CalibrationError as exc:
+            self.drop('bad_calibration', f'camera_info unusable: {exc}')
+        return None
 
     def drop(self, reason: str, detail: str) -> None:
         """Count a frame that produced no output, and log why (throttled per reason).
