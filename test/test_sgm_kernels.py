@@ -31,6 +31,13 @@ def test_census_matches_reference(window: tuple[int, int]) -> None:
                                   census_transform_reference(left, window))
 
 
+@pytest.mark.parametrize('window', [(5, 5), (7, 9)])
+def test_mirrored_census_is_the_census_flipped(window: tuple[int, int]) -> None:
+    left, _ = _pair()
+    np.testing.assert_array_equal(census_transform(left, window, mirrored=True)[:, ::-1],
+                                  census_transform_reference(left, window))
+
+
 @pytest.mark.parametrize('settings', [
     {'census_weight': 1, 'intensity_weight': 0},
     {'census_weight': 0, 'intensity_weight': 1, 'intensity_cost': 'ad'},

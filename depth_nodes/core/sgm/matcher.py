@@ -52,11 +52,11 @@ class SgmParams:
         paths: 4, 8 or 16 aggregation paths.
         uniqueness_ratio: Percent by which the winner must beat the best non-neighbouring
             disparity (OpenCV's rule); 0 disables the check.
+        subpixel: ``'parabola'``, ``'equiangular'`` or ``'none'``.
+        median_filter: Apply a 3x3 median to the left disparity.
 
     The defaults (census 5x5 plus Birchfield-Tomasi, adaptive P2) were chosen on simulator
     scenes of seeds 101, 202 and 303, not on the bundled bags the README's figures use.
-        subpixel: ``'parabola'``, ``'equiangular'`` or ``'none'``.
-        median_filter: Apply a 3x3 median to the left disparity.
     """
 
     min_disparity: int = 0
@@ -174,7 +174,8 @@ class SgmMatcher:
                 'rings': rings, 'mbuf': mbuf,
                 'dxs': np.array([d[0] for d in dirs], np.int64),
                 'dys': np.array([d[1] for d in dirs], np.int64),
-                'rows': tuple(np.empty((w, n), np.uint16) for _ in range(3)),
+                'rows': (np.empty((w, n), np.uint16), np.empty((2, w, n), np.uint16),
+                         np.empty((2, w, n), np.uint16)),
                 'keys': np.empty((CHUNKS_PER_THREAD * threads, w), np.uint32),
                 'disparity': np.empty((h, w), np.float32),
                 'disparity_right': np.empty((h, w), np.float32),
