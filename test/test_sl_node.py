@@ -130,7 +130,7 @@ def test_frames_delivered_out_of_stamp_order(node: Any) -> None:
     for k in order:
         _send(node, stamps[k], CAPTURE.images[k], f'0:{k}/{N}')
     assert node.outbox == []
-    assert node.drops['sync_out_of_order'] == 2  # the image and its camera_info
+    assert node.drops['stamp_out_of_order'] == 2  # the image and its camera_info
     assert node.drops['sequence_missing_frame'] == 1
     _sequence(node, 1)
     assert len(node.outbox) == 3

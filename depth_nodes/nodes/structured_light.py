@@ -124,7 +124,9 @@ class StructuredLightNode(DepthNode):
         self.add_synced_inputs([(Image, 'image'), (CameraInfo, 'camera_info')], self.on_frame,
                                queue_size=self.queue_size)
         self.add_input(Header, 'pattern', self.on_tag)
-        self.add_input(CameraInfo, 'projector/camera_info', self.on_projector_info)
+        # the projector's calibration: only the latest matters, whatever its stamp
+        self.add_input(CameraInfo, 'projector/camera_info', self.on_projector_info,
+                       check_stamps=False)
 
     # ---------------------------------------------------------------- inputs
 

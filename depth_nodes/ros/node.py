@@ -8,7 +8,12 @@ It adds three things to ``rclpy.node.Node``, all of which the offline bag harnes
 * QoS follows REP 2003 (sensor-data subscriptions, reliable publishers) and both can be
   overridden with ``qos_overrides`` parameters;
 * a frame that produces no output is never lost silently: :meth:`DepthNode.drop` counts it
-  by reason and logs a throttled warning naming the reason.
+  by reason and logs a throttled warning naming the reason;
+* every input message is counted and its stamp checked (a message not newer than the last
+  one on its topic is dropped as ``stamp_out_of_order``, unless the stamps jumped back by
+  :data:`STAMP_RESET_S` or more, as when a bag loops, which starts the topic over);
+* every ``diagnostics_period`` seconds the node publishes a diagnostic_msgs/DiagnosticArray
+  on ``/diagnostics``: input and output rates, processing time per frame, drops by reason.
 """
 
 from __future__ import annotations
@@ -17,10 +22,12 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
@@ -36,6 +43,11 @@ from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchroni
 PUBLISHER_DEPTH = 10
 #: Seconds between two warnings for the same drop reason.
 DROP_LOG_PERIOD_S = 5.0
+#: A stamp this many seconds or more older than the last one on its topic starts the topic
+#: over (a looping bag, a restarted driver) instead of being dropped as out of order.
+STAMP_RESET_S = 1.0
+#: Topic of the diagnostics every node publishes (the diagnostic_aggregator's input).
+DIAGNOSTICS_TOPIC = '/diagnostics'
 
 Sink = Callable[[str, Any], None]
 
@@ -47,6 +59,17 @@ class InputSpec:
     topic: str
     msg_type: type
     callback: Callable[[Any], None]
+
+
+@dataclass
+class _Window:
+    """Counts of one diagnostics period (reset when it is published)."""
+
+    start: float
+    inputs: Counter[str] = field(default_factory=Counter)
+    outputs: Counter[str] = field(default_factory=Counter)
+    drops: Counter[str] = field(default_factory=Counter)
+    frame_times: list[float] = field(default_factory=list)
 
 
 class Output:
@@ -65,11 +88,17 @@ class Output:
     def publish(self, msg: Any) -> None:
         """Publish ``msg`` (or hand it to the harness sink)."""
         self.count += 1
+        self._node._window.outputs[self.topic] += 1
         sink = self._node.sink
         if sink is None:
             self._publisher.publish(msg)
         else:
             sink(self.topic, msg)
+
+    @property
+    def qos_profile(self) -> QoSProfile:
+        """The publisher's QoS (after ``qos_overrides``)."""
+        return self._publisher.qos_profile  # type: ignore[no-any-return]
 
 
 class DepthNode(Node):
@@ -86,9 +115,25 @@ class DepthNode(Node):
         self.inputs: list[InputSpec] = []
         self.outputs: dict[str, Output] = {}
         self.drops: Counter[str] = Counter()
+        self.received: Counter[str] = Counter()
         self.sink: Sink | None = None
         self._last_drop_log: dict[str, float] = {}
+        self._last_stamp: dict[str, int] = {}
+        self._syncs: list[tuple[Any, Counter[str]]] = []
         self._stereo_cache: StereoInfoCache | None = None
+        self._window = _Window(time.monotonic())
+        period = self.declare_parameter(
+            'diagnostics_period', 1.0, ParameterDescriptor(
+                description=f'Seconds between two DiagnosticArray messages on '
+                            f'{DIAGNOSTICS_TOPIC} (0 disables them)',
+                read_only=True,
+                floating_point_range=[FloatingPointRange(from_value=0.0, to_value=3600.0,
+                                                         step=0.0)])).value
+        self._diagnostics_pub = None
+        if period > 0:
+            self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                                          PUBLISHER_DEPTH)
+            self.create_timer(period, self.publish_diagnostics)
 
     def add_input(
         self,
@@ -97,21 +142,61 @@ class DepthNode(Node):
         callback: Callable[[Any], None],
         *,
         qos: QoSProfile | int | None = None,
+        check_stamps: bool = True,
     ) -> str:
         """Subscribe ``callback`` to ``topic`` with sensor-data QoS unless told otherwise.
+
+        Every message is counted. With ``check_stamps`` (the default; off for inputs where
+        only the latest value matters, such as a fixed calibration), a message whose header
+        stamp is not newer than the last on this topic is dropped (``stamp_out_of_order``)
+        before ``callback`` sees it, unless it is :data:`STAMP_RESET_S` or more older (the
+        node then starts over: see :meth:`_start_over`). The time spent in
+        ``callback`` when it publishes is the frame's processing time in the diagnostics.
 
         Returns:
             The fully resolved topic name (after namespace and remapping).
         """
+        resolved = self.resolve_topic_name(topic)
+
+        def on_message(msg: Any) -> None:
+            self.received[resolved] += 1
+            self._window.inputs[resolved] += 1
+            if check_stamps and not self._stamp_in_order(resolved, msg):
+                return
+            published = sum(self._window.outputs.values())
+            start = time.perf_counter()
+            callback(msg)
+            if sum(self._window.outputs.values()) > published:
+                self._window.frame_times.append(time.perf_counter() - start)
+
         sub = self.create_subscription(
             msg_type,
             topic,
-            callback,
+            on_message,
             qos if qos is not None else qos_profile_sensor_data,
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
         )
-        self.inputs.append(InputSpec(sub.topic_name, msg_type, callback))
+        self.inputs.append(InputSpec(sub.topic_name, msg_type, on_message))
         return str(sub.topic_name)
+
+    def _stamp_in_order(self, topic: str, msg: Any) -> bool:
+        header = getattr(msg, 'header', None)
+        if header is None:
+            return True
+        stamp = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+        last = self._last_stamp.get(topic)
+        self._last_stamp[topic] = stamp if last is None else max(stamp, last)
+        if last is None or stamp > last:
+            return True
+        if last - stamp >= STAMP_RESET_S * 1e9:
+            self.get_logger().info(f'{topic}: stamps jumped back by {(last - stamp) / 1e9:.3f} '
+                                   's (a looping bag or a restarted source): starting over')
+            self._start_over()
+            self._last_stamp[topic] = stamp
+            return True
+        self.drop('stamp_out_of_order', f'{topic}: stamp {stamp / 1e9:.9f} s is not newer '
+                  f'than the last one, {last / 1e9:.9f} s')
+        return False
 
     def add_output(
         self, msg_type: type, topic: str, *, qos: QoSProfile | int | None = None
@@ -151,6 +236,7 @@ class DepthNode(Node):
             sync = ExactTimeSynchronizer(len(inputs), callback, queue_size=queue_size)
         seen: Counter[str] = Counter()
         topics: list[str] = []
+        self._syncs.append((sync, seen))
 
         def feed(index: int) -> Callable[[Any], None]:
             def on_message(msg: Any) -> None:
@@ -165,6 +251,17 @@ class DepthNode(Node):
         for index, (msg_type, topic) in enumerate(inputs):
             topics.append(self.add_input(msg_type, topic, feed(index)))
         return sync
+
+    def _start_over(self) -> None:
+        """Forget every input's stamp history and what the synchronisers hold (counted as
+        ``time_jump`` drops), so the inputs can be matched again from the new stamps on."""
+        self._last_stamp.clear()
+        for sync, seen in self._syncs:
+            if sync.queued:
+                self.drop('time_jump', f'{sync.queued} message(s) waiting for their partners '
+                          'were discarded when the stamps jumped back')
+            sync.reset()
+            seen.clear()
 
     def frame_image(self, msg: Any, what: str, shape: tuple[int, ...],
                     encodings: tuple[str, ...]) -> Any:
@@ -211,6 +308,7 @@ class DepthNode(Node):
             detail: The human-readable explanation, e.g. the sizes that disagreed.
         """
         self.drops[reason] += 1
+        self._window.drops[reason] += 1
         now = time.monotonic()
         last = self._last_drop_log.get(reason)
         if last is None or now - last >= DROP_LOG_PERIOD_S:
@@ -218,6 +316,58 @@ class DepthNode(Node):
             self.get_logger().warning(
                 f'dropped frame ({reason}, {self.drops[reason]} so far): {detail}'
             )
+
+
+    def diagnostics(self) -> DiagnosticStatus:
+        """The node's status since the last call (which starts a new period).
+
+        Values: per input and output topic its rate over the period and its total; the
+        processing time per frame (mean and max over the period); per drop reason its
+        total. Level WARN when frames were dropped during the period, else OK.
+        """
+        now = time.monotonic()
+        window, self._window = self._window, _Window(now)
+        span = max(now - window.start, 1e-9)
+        values = []
+        for spec in self.inputs:
+            values += [KeyValue(key=f'input {spec.topic} rate (Hz)',
+                                value=f'{window.inputs[spec.topic] / span:.2f}'),
+                       KeyValue(key=f'input {spec.topic} total',
+                                value=str(self.received[spec.topic]))]
+        for topic, out in self.outputs.items():
+            values += [KeyValue(key=f'output {topic} rate (Hz)',
+                                value=f'{window.outputs[topic] / span:.2f}'),
+                       KeyValue(key=f'output {topic} total', value=str(out.count))]
+        times = window.frame_times
+        values += [
+            KeyValue(key='frames processed', value=str(len(times))),
+            KeyValue(key='processing time mean (ms)',
+                     value=f'{1e3 * sum(times) / len(times):.2f}' if times else 'nan'),
+            KeyValue(key='processing time max (ms)',
+                     value=f'{1e3 * max(times):.2f}' if times else 'nan'),
+            KeyValue(key='drops total', value=str(sum(self.drops.values()))),
+        ]
+        values += [KeyValue(key=f'drops {reason}', value=str(count))
+                   for reason, count in sorted(self.drops.items())]
+        if window.drops:
+            level = DiagnosticStatus.WARN
+            message = f'dropped {sum(window.drops.values())} in {span:.1f} s: ' + ', '.join(
+                f'{reason} {count}' for reason, count in sorted(window.drops.items()))
+        else:
+            level = DiagnosticStatus.OK
+            message = (f'{len(times) / span:.1f} frames/s' if sum(self.received.values())
+                       else 'waiting for input')
+        name = self.get_fully_qualified_name()
+        return DiagnosticStatus(level=level, name=name, message=message, hardware_id=name,
+                                values=values)
+
+    def publish_diagnostics(self) -> None:
+        """Publish :meth:`diagnostics` on ``/diagnostics`` (the timer's callback)."""
+        if self._diagnostics_pub is None:
+            return
+        array = DiagnosticArray(status=[self.diagnostics()])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics_pub.publish(array)
 
 
 def run_node(node_class: type[DepthNode], args: list[str] | None = None) -> int:
