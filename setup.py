@@ -33,6 +33,8 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    # the Fast DDS profile the nodes use for large messages (depth_nodes/ros/dds.py)
+    package_data={PACKAGE: ['ros/*.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
@@ -53,7 +55,7 @@ setup(
         'ros': ROS_WHEELS,
         'dev': ['pytest', 'ruff', 'mypy', 'colcon-common-extensions', 'catkin_pkg'],
     },
-    zip_safe=True,
+    zip_safe=False,  # Fast DDS reads the profile from a real file
     maintainer='depth_nodes maintainers',
     maintainer_email='depth-nodes@example.com',
     description='Stereo, confidence, point-cloud and structured-light depth nodes for ROS 2.',

@@ -36,6 +36,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from depth_nodes.core.camera import StereoModel
 from depth_nodes.errors import CalibrationError, DepthNodesError, MessageError, UncalibratedError
 from depth_nodes.ros.camera_info import StereoInfoCache
+from depth_nodes.ros.dds import use_large_message_profile
 from depth_nodes.ros.image import image_to_array
 from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchronizer
 
@@ -376,6 +377,7 @@ def run_node(node_class: type[DepthNode], args: list[str] | None = None) -> int:
     Returns:
         The process exit status: 0, or 1 when the node could not start (bad parameters).
     """
+    use_large_message_profile()
     rclpy.init(args=args)
     node = None
     try:
