@@ -38,7 +38,7 @@ demo: venv
 
 # Regenerate the committed synthetic bags (deterministic from their seeds).
 bags: venv
-	$(BIN)/depth-nodes generate --preset all --out bags --force
+	$(BIN)/depth-nodes generate bags --preset all --force
 
 clean:
 	rm -rf $(VENV) out build install log *.egg-info

@@ -90,3 +90,26 @@ def test_usage_errors_exit_2() -> None:
     result = run_cli(['frobnicate'])
     assert result.returncode == 2
     assert 'invalid choice' in result.stderr
+
+
+@pytest.mark.parametrize(('args', 'message'), [
+    (['pipeline', '--config', 'missing.yaml'], 'graph config not found: missing.yaml'),
+    (['pipeline', '--config', '{tmp}/g.yaml'], "unknown node plugin 'nope'"),
+    (['pipeline', '--config', '{tmp}/empty.yaml'], 'has no nodes'),
+    (['pipeline', '--threads', '0'], '--threads must be at least 1, got 0'),
+    (['pipeline', '--params', '{tmp}/typo.yaml'],
+     'node /stereo/sgm_stereo (sgm_stereo) has no parameter P3'),
+    (['eval', 'x', '--ros-args', '-p', 'a:=1'], '--ros-args is only accepted by pipeline'),
+    (['bench'], 'bench needs a stage'),
+    (['play', 'x', '--delay', '-1'], '--delay must be >= 0, got -1.0'),
+])
+def test_pipeline_and_live_usage_errors(tmp_path: Path, ros_env: dict[str, str],
+                                        args: list[str], message: str) -> None:
+    (tmp_path / 'g.yaml').write_text('graph: {nodes: [{name: a, plugin: nope}]}')
+    (tmp_path / 'empty.yaml').write_text('graph: {name: e, nodes: []}')
+    (tmp_path / 'typo.yaml').write_text('sgm_stereo:\n  ros__parameters: {P3: 1.0}\n')
+    _good_bag(tmp_path / 'x')
+    result = run_cli([a.format(tmp=tmp_path) for a in args], env=ros_env)
+    assert result.returncode == 1, result.stderr
+    assert message in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr

@@ -1,8 +1,10 @@
 """The `depth-nodes` command.
 
 Subcommands: ``generate`` (synthetic bags), ``process`` (run nodes over a bag offline),
-``play`` / ``record`` (bags into and out of a live graph), ``eval`` (accuracy against the
-ground truth in a bag). A user error prints one line and exits non-zero; never a traceback.
+``pipeline`` (the nodes of a graph live, in one process), ``param`` (a running node's
+parameters), ``play`` / ``record`` (bags into and out of a live graph), ``eval``
+(accuracy against the ground truth in a bag), ``bench`` (speed beside OpenCV). A user error
+prints one line and exits non-zero; never a traceback.
 """
 
 from __future__ import annotations
@@ -26,8 +28,17 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     from depth_nodes.tools.generate import PRESETS, preset, write_stereo_bag
 
     known = [*PRESETS, *sl.PRESETS]
+    if args.preset == 'bad_inputs':
+        from depth_nodes.tools.campaign import write_bad_input_bag
+
+        source = args.source or BUNDLED_BAGS / 'stereo_vga'
+        campaign = write_bad_input_bag(args.out, source, overwrite=args.force)
+        print(f'{args.out}: bad_inputs from {source}: {len(campaign.good)} good frames, '
+              f'{len(campaign.cases)} hostile cases')
+        return 0
     if args.preset != 'all' and args.preset not in known:
-        raise ConfigError(f'unknown preset {args.preset!r} (presets: {", ".join(known)}, all)')
+        raise ConfigError(f'unknown preset {args.preset!r} (presets: {", ".join(known)}, '
+                          'bad_inputs, all)')
     names = known if args.preset == 'all' else [args.preset]
     out = Path(args.out)
     for name in names:
@@ -75,11 +86,19 @@ def _cmd_process(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_pipeline(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.pipeline import run_pipeline
+    from depth_nodes.tools.process import default_config_path
+
+    return run_pipeline(args.config or default_config_path(), params_file=args.params,
+                        threads=args.threads, ros_args=args.ros_args, log=sys.stdout)
+
+
 def _cmd_play(args: argparse.Namespace) -> int:
     from depth_nodes.tools.live import PlayOptions, play_bag
 
     options = PlayOptions(rate=args.rate, loop=args.loop, clock=args.clock, topics=args.topics,
-                          wait_for_subscribers=args.wait_for_subscribers)
+                          wait_for_subscribers=args.wait_for_subscribers, delay=args.delay)
     count = play_bag(args.bag, options, log=sys.stdout)
     print(f'played {count} messages')
     return 0
@@ -91,6 +110,22 @@ def _cmd_record(args: argparse.Namespace) -> int:
     count = record_bag(args.out_bag, args.topics, duration=args.duration,
                        max_messages=args.max_messages, overwrite=args.force, log=sys.stdout)
     print(f'recorded {count} messages to {args.out_bag}')
+    return 0
+
+
+def _cmd_param(args: argparse.Namespace) -> int:
+    from depth_nodes.tools import param
+
+    if args.verb == 'list':
+        print('\n'.join(param.list_parameters(args.node, timeout=args.timeout)))
+    elif args.verb == 'get':
+        value = param.get_parameter(args.node, args.name, timeout=args.timeout)
+        print(param.format_value(value))
+    elif args.verb == 'set':
+        param.set_parameter(args.node, args.name, args.value, timeout=args.timeout)
+        print('Set parameter successful')
+    elif args.verb == 'dump':
+        print(param.dump_parameters(args.node, timeout=args.timeout), end='')
     return 0
 
 
@@ -113,6 +148,15 @@ def _cmd_eval_sl(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.live:
+        from depth_nodes.tools.bench_live import bench_live
+
+        print(bench_live(rate=args.rate, count=args.frames or 50, opencv=not args.no_opencv,
+                         bag=args.bag).format())
+        return 0
+    if args.stage is None:
+        raise ConfigError('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
+                          'structured_light) or --live')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
     import cv2
 
@@ -153,7 +197,10 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument('out', help='bag folder to create (a parent folder with --preset all)')
     gen.add_argument('--preset', default='stereo_vga',
                      help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye, '
-                     'structured_light_vga or all')
+                     'structured_light_vga, all (these four), or bad_inputs (the hostile '
+                     'campaign, from --source)')
+    gen.add_argument('--source', help='bad_inputs: stereo bag whose raw frames to use '
+                     '(default: the bundled stereo_vga)')
     gen.add_argument('--seed', type=int, help='override the preset seed')
     gen.add_argument('--frames', type=int, help='override the number of frames')
     gen.add_argument('--force', action='store_true', help='replace existing bags')
@@ -168,6 +215,15 @@ def build_parser() -> argparse.ArgumentParser:
     proc.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
     proc.set_defaults(func=_cmd_process)
 
+    pipe = sub.add_parser('pipeline', help='run every node of a graph in one process, live',
+                          epilog='Anything after --ros-args goes to rclpy (e.g. '
+                          '--ros-args --log-level debug).')
+    pipe.add_argument('--config', help='graph YAML (default: config/stereo_pipeline.yaml)')
+    pipe.add_argument('--params', help='ROS 2 parameter file overriding node parameters')
+    pipe.add_argument('--threads', type=int,
+                      help='executor threads (default: one per node, at least 2)')
+    pipe.set_defaults(func=_cmd_pipeline)
+
     play = sub.add_parser('play', help='publish a bag into the live graph')
     play.add_argument('bag')
     play.add_argument('--rate', type=float, default=1.0, help='speed factor (default 1)')
@@ -176,6 +232,8 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument('--topics', nargs='+', help='only these topics')
     play.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='SECONDS',
                       help='wait up to SECONDS for every topic to have a subscriber')
+    play.add_argument('--delay', type=float, default=0.0, metavar='SECONDS',
+                      help='then wait SECONDS more before the first message')
     play.set_defaults(func=_cmd_play)
 
     rec = sub.add_parser('record', help='record live topics into a bag')
@@ -185,6 +243,20 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument('--max-messages', type=int, help='stop after N messages')
     rec.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
     rec.set_defaults(func=_cmd_record)
+
+    par = sub.add_parser('param', help="a running node's parameters (like ros2 param)")
+    verbs = par.add_subparsers(dest='verb', required=True)
+    for verb, what in [('list', 'parameter names, sorted'), ('get', 'one value'),
+                       ('set', 'change one value'), ('dump', 'all values as a params file')]:
+        cmd = verbs.add_parser(verb, help=what)
+        cmd.add_argument('node', help='node name, e.g. /stereo/sgm_stereo')
+        if verb in ('get', 'set'):
+            cmd.add_argument('name', help='parameter name')
+        if verb == 'set':
+            cmd.add_argument('value', help='YAML value: 5, 5.0, true, [1, 2], text')
+        cmd.add_argument('--timeout', type=float, default=10.0, metavar='SECONDS',
+                         help='wait this long for the node (default 10)')
+    par.set_defaults(func=_cmd_param)
 
     ev = sub.add_parser('eval', help='accuracy of a processed bag against its ground truth')
     ev.add_argument('bag')
@@ -201,14 +273,22 @@ def build_parser() -> argparse.ArgumentParser:
     evsl.set_defaults(func=_cmd_eval_sl)
 
     bench = sub.add_parser('bench', help='speed figures beside OpenCV, measured in one run')
-    bench.add_argument('stage', choices=['rectify', 'sgm', 'cross_check', 'point_cloud',
-                                         'structured_light'],
-                       help='what to time')
-    bench.add_argument('--bag', help='structured_light: the bag to time (default: bundled)')
+    bench.add_argument('stage', nargs='?', choices=['rectify', 'sgm', 'cross_check',
+                                                    'point_cloud', 'structured_light'],
+                       help='what to time (or --live)')
+    bench.add_argument('--live', action='store_true',
+                       help='the stereo pipeline as separate processes over DDS: sustained '
+                       'rate and per-stage latency, beside the OpenCV graph')
+    bench.add_argument('--rate', type=float, default=10.0,
+                       help='--live: frames per second to publish (default 10)')
+    bench.add_argument('--no-opencv', action='store_true',
+                       help='--live: skip the OpenCV graph')
+    bench.add_argument('--bag', help='structured_light, --live: the bag to use '
+                       '(default: bundled)')
     bench.add_argument('--width', type=int, default=640, help='rectify: frame width')
     bench.add_argument('--height', type=int, default=480, help='rectify: frame height')
     bench.add_argument('--frames', type=int, help='timed repetitions (median); default 200 '
-                       'for rectify, 10 for sgm')
+                       'for rectify, 10 for sgm, 50 frames for --live')
     bench.add_argument('--threads', type=int, default=2, help='OpenCV and numba threads')
     bench.add_argument('--disparities', type=int, default=128, help='sgm: disparity range')
     bench.add_argument('--paths', type=int, default=8, help='sgm: 4, 8 or 16')
@@ -220,7 +300,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of `depth-nodes`; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list[str] = []
+    if '--ros-args' in argv:  # rclpy's arguments, for `pipeline`
+        ros_args = argv[argv.index('--ros-args'):]
+        argv = argv[:argv.index('--ros-args')]
     args = build_parser().parse_args(argv)
+    args.ros_args = ros_args
+    from depth_nodes.ros.dds import use_large_message_profile
+
+    use_large_message_profile()  # before any rclpy.init: live commands move large messages
+    if ros_args and args.command != 'pipeline':
+        print(f'depth-nodes {args.command}: error: --ros-args is only accepted by pipeline',
+              file=sys.stderr)
+        return EXIT_ERROR
     try:
         return int(args.func(args))
     except DepthNodesError as exc:

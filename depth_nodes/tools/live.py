@@ -48,6 +48,9 @@ class PlayOptions:
         topics: Only these topics (all when None).
         wait_for_subscribers: Seconds to wait, before the first message, for every topic
             to have a subscriber.
+        delay: Seconds to wait after that, before the first message. A publisher sees a
+            subscription a moment before the subscription is ready for data, and a
+            best-effort subscription loses what comes in between.
     """
 
     rate: float = 1.0
@@ -55,11 +58,14 @@ class PlayOptions:
     clock: bool = False
     topics: list[str] | None = None
     wait_for_subscribers: float = 0.0
+    delay: float = 0.0
 
     def validate(self) -> None:
-        """Raises ConfigError for a non-positive rate or negative wait."""
+        """Raises ConfigError for a non-positive rate or a negative wait or delay."""
         if not self.rate > 0:
             raise ConfigError(f'--rate must be positive, got {self.rate}')
+        if self.delay < 0:
+            raise ConfigError(f'--delay must be >= 0, got {self.delay}')
         if self.wait_for_subscribers < 0:
             raise ConfigError(f'--wait-for-subscribers must be >= 0, got '
                               f'{self.wait_for_subscribers}')
@@ -91,6 +97,7 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
             clock_pub = node.create_publisher(Clock, '/clock', _reliable())
         waited = {**pubs, '/clock': clock_pub} if clock_pub is not None else pubs
         _wait_for_subscribers(waited, options.wait_for_subscribers)
+        time.sleep(options.delay)
         if log:
             log.write(f'playing {reader.message_count} messages on {len(topics)} topics\n')
             log.flush()
