@@ -1,0 +1,272 @@
+"""`depth-nodes bench --live`: the stereo pipeline over DDS, one process per node.
+
+The graph of config/stereo_pipeline.yaml (rectify x2 -> sgm_stereo -> cross_check ->
+point_cloud) runs as five processes; this process publishes 640x480 frames of the bundled
+stereo_vga bag at a fixed rate and subscribes to every stage's output, so it sees when each
+frame leaves each stage. Printed: the sustained output rate, frames lost, per-stage
+latency (median and 95th percentile), each process's CPU load, and drops the nodes
+reported on /diagnostics. The same is then measured for the graph stereo_image_proc users
+run, OpenCV's StereoSGBM (MODE_HH) in the SGM node and no cross-check, on the same frames.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import statistics
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+
+from depth_nodes.errors import ConfigError
+from depth_nodes.ros.graph import GraphConfig, load_graph_config
+from depth_nodes.tools.live_graph import (
+    GraphProcesses,
+    StereoFeeder,
+    StereoFrame,
+    load_stereo_frames,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+NS = '/stereo'
+LEFT_RECT, RIGHT_RECT = f'{NS}/left/image_rect', f'{NS}/right/image_rect'
+DISPARITY, CHECKED, POINTS = f'{NS}/disparity', f'{NS}/disparity_checked', f'{NS}/points2'
+#: Seconds the first (warm-up) frame may take: processes start, numba loads its cache.
+FIRST_FRAME_TIMEOUT_S = 300.0
+#: Seconds to wait for the last frame's outputs after it was published.
+DRAIN_S = 10.0
+#: Seconds after which an unanswered warm-up frame is followed by another.
+RETRY_S = 5.0
+
+#: A stage: its name, the topics it consumes ('' = the published raw frame) and produces.
+Stage = tuple[str, tuple[str, ...], tuple[str, ...]]
+OURS_STAGES: list[Stage] = [
+    ('rectify', ('',), (LEFT_RECT, RIGHT_RECT)),
+    ('sgm_stereo', (LEFT_RECT, RIGHT_RECT), (DISPARITY,)),
+    ('cross_check', (DISPARITY,), (CHECKED,)),
+    ('point_cloud', (CHECKED,), (POINTS,)),
+]
+OPENCV_STAGES: list[Stage] = [
+    ('rectify', ('',), (LEFT_RECT, RIGHT_RECT)),
+    ('sgm_stereo (opencv)', (LEFT_RECT, RIGHT_RECT), (DISPARITY,)),
+    ('point_cloud', (DISPARITY,), (POINTS,)),
+]
+
+
+@dataclass
+class LiveRun:
+    """Figures of one graph at one rate."""
+
+    label: str
+    rate: float
+    sent: int
+    received: int
+    fps: float
+    latency_ms: dict[str, tuple[float, float]]
+    cpu_percent: dict[str, float]
+    node_drops: dict[str, int] = field(default_factory=dict)
+
+    def format(self) -> str:
+        lost = self.sent - self.received
+        lines = [f'{self.label}: {self.sent} frames sent at {self.rate:g} Hz, '
+                 f'{self.received} point clouds back ({lost} lost), sustained '
+                 f'{self.fps:.2f} Hz']
+        for stage, (median, p95) in self.latency_ms.items():
+            lines.append(f'  latency {stage:<22} median {median:7.1f} ms   p95 {p95:7.1f} ms')
+        load = ', '.join(f'{name.rsplit("/", 1)[-1]} {pct:.0f}%'
+                         for name, pct in self.cpu_percent.items())
+        lines.append(f'  CPU (100% = one core): {load}; total '
+                     f'{sum(self.cpu_percent.values()):.0f}% of 200%')
+        drops = ', '.join(f'{n} {c}' for n, c in self.node_drops.items() if c) or 'none'
+        lines.append(f'  drops reported on /diagnostics: {drops}')
+        return '\n'.join(lines)
+
+
+@dataclass
+class LiveBench:
+    """Ours and the OpenCV graph, measured one after the other in one run."""
+
+    ours: LiveRun
+    opencv: LiveRun | None
+    target_hz: float = 10.0
+
+    def format(self) -> str:
+        lines = ['live: 640x480, 128 disparities, 8 paths, one process per node over DDS '
+                 '(Fast DDS, localhost)', self.ours.format()]
+        met = self.ours.fps >= 0.95 * self.target_hz and self.ours.received == self.ours.sent
+        lines.append(f'  target {self.target_hz:g} Hz with nothing lost: '
+                     f'{"met" if met else "NOT met"}')
+        if self.opencv is not None:
+            lines.append(self.opencv.format())
+            lines.append(f'  ours / OpenCV graph, sustained rate: '
+                         f'{self.ours.fps / max(self.opencv.fps, 1e-9):.2f}')
+        return '\n'.join(lines)
+
+
+def opencv_graph(config: GraphConfig) -> GraphConfig:
+    """``config`` as stereo_image_proc users run it: StereoSGBM MODE_HH in the SGM node,
+    no cross-check, the point cloud straight from the disparity."""
+    graph = copy.deepcopy(config)
+    graph.nodes = [n for n in graph.nodes if n.plugin != 'cross_check']
+    for node in graph.nodes:
+        if node.plugin == 'sgm_stereo':
+            node.parameters.update(backend='opencv', full_dp=True)
+        if node.plugin == 'point_cloud':
+            node.parameters['use_confidence'] = False
+            node.remappings.pop('disparity', None)
+    graph.name = f'{config.name} (opencv)'
+    return graph
+
+
+def _percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
+
+
+def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame], *,
+             rate: float, count: int, warmup: int, label: str, workdir: Path,
+             env: dict[str, str]) -> LiveRun:
+    """Run ``config`` as processes, feed ``warmup`` frames one at a time, then ``count``
+    frames at ``rate`` Hz, and measure."""
+    watch = sorted({t for _, _, outs in stages for t in outs})
+    context = Context()
+    rclpy.init(args=[], context=context)
+    node = rclpy.create_node('depth_nodes_bench_live', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    feeder = StereoFeeder(node, NS, watch)
+    last_status: dict[str, int] = {}
+
+    def on_diagnostics(array: DiagnosticArray) -> None:
+        for status in array.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if 'drops total' in values:
+                last_status[status.name] = int(values['drops total'])
+
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 50)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    graph = GraphProcesses(config, workdir, env=env)
+    try:
+        graph.start()
+        _wait(lambda: feeder.graph_ready(), FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
+        stamp = warm_up(feeder, frames, graph, warmup)
+        time.sleep(1.5)  # a diagnostics period: the drops so far are the warm-up's
+        drops_before = dict(last_status)
+        cpu_start, wall_start = graph.cpu_seconds(), time.monotonic()
+        timed = []
+        for i in range(count):
+            stamp += 100_000_000
+            delay = wall_start + i / rate - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            feeder.publish(frames[i % len(frames)], stamp)
+            timed.append(stamp)
+        deadline = time.monotonic() + DRAIN_S
+        while time.monotonic() < deadline and not all(feeder.complete(s) for s in timed):
+            time.sleep(0.05)
+        cpu_end = graph.cpu_seconds()
+        wall = time.monotonic() - wall_start
+        time.sleep(1.5)  # one more diagnostics period
+    finally:
+        graph.stop()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        spinner.join(timeout=5)
+    final = stages[-1][2][0]
+    done = sorted(feeder.arrived[final][s] for s in timed if s in feeder.arrived[final])
+    fps = (len(done) - 1) / (done[-1] - done[0]) if len(done) > 1 else 0.0
+    latency = {}
+    for name, inputs, outputs in [*stages, ('end to end', ('',), stages[-1][2])]:
+        values = []
+        for s in timed:
+            if not all(s in feeder.arrived[t] for t in outputs):
+                continue
+            start = max(feeder.sent[s] if t == '' else feeder.arrived[t][s] for t in inputs)
+            values.append(1e3 * (max(feeder.arrived[t][s] for t in outputs) - start))
+        if values:
+            latency[name] = (statistics.median(values), _percentile(values, 0.95))
+    cpu = {n: 100 * (cpu_end[n] - cpu_start.get(n, 0.0)) / wall for n in cpu_end}
+    drops = {n: c - drops_before.get(n, 0) for n, c in last_status.items()}
+    return LiveRun(label, rate, count, len(done), fps, latency, cpu, drops)
+
+
+def warm_up(feeder: StereoFeeder, frames: list[StereoFrame], graph: GraphProcesses,
+            count: int) -> int:
+    """Publish frames one at a time until ``count`` have come out of every stage; returns
+    the last stamp used.
+
+    A frame published just after the graph connected can still be lost (DDS matches the
+    two ends of a connection one after the other), and the first frame waits for numba to
+    load its kernels, so an unanswered frame is followed by another every few seconds.
+    """
+    stamp, done = 1_000_000_000, 0
+    deadline = time.monotonic() + FIRST_FRAME_TIMEOUT_S
+    while done < count:
+        stamp += 100_000_000
+        feeder.publish(frames[done % len(frames)], stamp)
+        retry = time.monotonic() + RETRY_S
+        while not feeder.complete(stamp) and time.monotonic() < retry:
+            _check_alive(graph)
+            time.sleep(0.02)
+        if feeder.complete(stamp):
+            done += 1
+        elif time.monotonic() > deadline:
+            raise ConfigError(f'bench --live: no frame came out of the graph within '
+                              f'{FIRST_FRAME_TIMEOUT_S:g} s')
+    return stamp
+
+
+def _check_alive(graph: GraphProcesses) -> None:
+    exited = graph.exited()
+    if exited:
+        name, code = next(iter(exited.items()))
+        raise ConfigError(f'bench --live: node {name} exited with status {code}:\n'
+                          f'{graph.log(name)[-2000:]}')
+
+
+def _wait(done: object, timeout: float, graph: GraphProcesses, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not done():  # type: ignore[operator]
+        _check_alive(graph)
+        if time.monotonic() > deadline:
+            raise ConfigError(f'bench --live: timed out after {timeout:g} s waiting for {what}')
+        time.sleep(0.02)
+
+
+def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
+               opencv: bool = True, bag: str | Path | None = None) -> LiveBench:
+    """Measure the stereo pipeline (and the OpenCV graph) as separate processes.
+
+    Runs in its own ROS domain (derived from the process id, discovery on localhost) so it
+    neither disturbs nor hears another graph.
+    """
+    if rate <= 0 or count < 2 or warmup < 1:
+        raise ConfigError('bench --live needs --rate > 0, at least 2 frames and 1 warm-up')
+    env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    os.environ.update(ROS_DOMAIN_ID=env['ROS_DOMAIN_ID'],
+                      ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    frames = load_stereo_frames(bag or REPO / 'bags' / 'stereo_vga', NS)
+    if not frames:
+        raise ConfigError(f'bench --live: no complete stereo frame under {NS} in {bag}')
+    config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
+    with tempfile.TemporaryDirectory(prefix='depth_nodes_live_') as tmp:
+        ours = run_live(config, OURS_STAGES, frames, rate=rate, count=count, warmup=warmup,
+                        label='depth_nodes graph (census SGM + cross-check)',
+                        workdir=Path(tmp) / 'ours', env=env)
+        theirs = None
+        if opencv:
+            theirs = run_live(opencv_graph(config), OPENCV_STAGES, frames, rate=rate,
+                              count=count, warmup=warmup,
+                              label='OpenCV graph (StereoSGBM MODE_HH, no cross-check)',
+                              workdir=Path(tmp) / 'opencv', env=env)
+    return LiveBench(ours, theirs, target_hz=rate)

@@ -1,0 +1,182 @@
+"""The bad-input campaign: a stereo bag of malformed and hostile messages between good frames.
+
+Built from the raw frames of a stereo bag (the bundled stereo_vga by default): every case
+is one stamp, 0.5 s after the previous one, of the four raw topics under ``/stereo``
+(left/right image_raw and camera_info), with something wrong in it, and good frames sit
+between the cases. :data:`CASES` says, for each case, which node must drop it first and
+under which reason; the test replays the bag into the stereo graph of separate processes
+and checks exactly that, that no node dies, and that every good frame, and only those,
+comes out as a point cloud.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from depth_nodes.tools.bagio import BagWriter
+from depth_nodes.tools.live_graph import StereoFrame, load_stereo_frames
+
+NS = '/stereo'
+TOPICS = (f'{NS}/left/image_raw', f'{NS}/left/camera_info', f'{NS}/right/image_raw',
+          f'{NS}/right/camera_info')
+#: Seconds between two stamps of the campaign (more than a frame takes to go through).
+STEP_S = 0.5
+#: Bag time of the first message.
+START_NS = 100 * 1_000_000_000
+
+#: Which messages of a case are written: all four, or only one side.
+Keep = tuple[bool, bool, bool, bool]
+ALL: Keep = (True, True, True, True)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One hostile stamp.
+
+    Attributes:
+        name: What is wrong.
+        spoil: Changes the (copied) frame in place.
+        drops: ``{node: {reason: count}}`` that the first node(s) seeing it must count.
+        keep: Which of the four messages are written.
+        stamp_offset_s: Added to the case's stamp (negative: out of order).
+    """
+
+    name: str
+    spoil: Callable[[StereoFrame], None]
+    drops: dict[str, dict[str, int]]
+    keep: Keep = ALL
+    stamp_offset_s: float = 0.0
+
+
+def _left_image(change: Callable[..., None]) -> Callable[[StereoFrame], None]:
+    return lambda frame: change(frame[0])
+
+
+def _unknown_encoding(image: object) -> None:
+    image.encoding = 'yuv_sideways'  # type: ignore[attr-defined]
+
+
+def _mono_as_rgb(image: object) -> None:
+    image.encoding = 'rgb8'  # type: ignore[attr-defined]  # 1 byte/pixel data, 3 declared
+
+
+def _step_disagrees(image: object) -> None:
+    image.step = image.width + 7  # type: ignore[attr-defined]
+
+
+def _empty_data(image: object) -> None:
+    image.data = []  # type: ignore[attr-defined]
+
+
+def _huge(image: object) -> None:
+    image.width = image.height = 1_000_000  # type: ignore[attr-defined]
+    image.step = 1_000_000  # type: ignore[attr-defined]
+    image.data = bytes(64)  # type: ignore[attr-defined]
+
+
+def _zero_k(frame: StereoFrame) -> None:
+    frame[1].k = [0.0] * 9
+
+
+def _nan_calibration(frame: StereoFrame) -> None:
+    d = list(frame[3].d)
+    d[0] = float('nan')
+    frame[3].d = d
+
+
+def _half_size_right(frame: StereoFrame) -> None:
+    """A consistent right camera at half resolution (2x2 binning): the rectifier takes it,
+    the matcher must refuse a 640x480 / 320x240 pair."""
+    image, info = frame[2], frame[3]
+    rows = bytes(image.data)
+    width, height = image.width, image.height
+    image.data = b''.join(rows[y * image.step:y * image.step + width:2]
+                          for y in range(0, height, 2))
+    image.width, image.height, image.step = width // 2, height // 2, width // 2
+    info.binning_x = info.binning_y = 2
+
+
+def _nothing(frame: StereoFrame) -> None:
+    return None
+
+
+RECTIFY_LEFT, RECTIFY_RIGHT = f'{NS}/left/rectify_left', f'{NS}/right/rectify_right'
+SGM, POINT_CLOUD = f'{NS}/sgm_stereo', f'{NS}/point_cloud'
+
+CASES: tuple[Case, ...] = (
+    Case('unknown encoding', _left_image(_unknown_encoding),
+         {RECTIFY_LEFT: {'unsupported_encoding': 1}}),
+    Case('mono data declared rgb8', _left_image(_mono_as_rgb),
+         {RECTIFY_LEFT: {'malformed_image': 1}}),
+    Case('step and data length disagree', _left_image(_step_disagrees),
+         {RECTIFY_LEFT: {'malformed_image': 1}}),
+    Case('empty data', _left_image(_empty_data), {RECTIFY_LEFT: {'malformed_image': 1}}),
+    Case('huge declared size, 64 bytes of data', _left_image(_huge),
+         {RECTIFY_LEFT: {'size_mismatch': 1}}),
+    Case('zero calibration (K all zero)', _zero_k,
+         {RECTIFY_LEFT: {'uncalibrated': 1}}),
+    Case('NaN in the distortion', _nan_calibration, {RECTIFY_RIGHT: {'bad_calibration': 1}}),
+    Case('left / right size mismatch', _half_size_right, {SGM: {'size_mismatch': 1}}),
+    Case('stamp older than the previous frame', _nothing,
+         {RECTIFY_LEFT: {'stamp_out_of_order': 2}, RECTIFY_RIGHT: {'stamp_out_of_order': 2},
+          SGM: {'stamp_out_of_order': 2}, POINT_CLOUD: {'stamp_out_of_order': 2}},
+         stamp_offset_s=-0.75),
+    Case('unpaired left frame', _nothing, {}, keep=(True, True, False, False)),
+    Case('unpaired right frame', _nothing, {}, keep=(False, False, True, True)),
+)
+
+
+@dataclass
+class Campaign:
+    """What was written: stamps of the good frames and of each case."""
+
+    good: list[int]
+    cases: list[tuple[int, Case]]
+
+    def expected_drops(self) -> dict[str, Counter[str]]:
+        """Per node, the drops the cases must cause at the first node seeing them."""
+        out: dict[str, Counter[str]] = {}
+        for _, case in self.cases:
+            for node, reasons in case.drops.items():
+                out.setdefault(node, Counter()).update(reasons)
+        return out
+
+
+def write_bad_input_bag(path: str | Path, source: str | Path, *,
+                        overwrite: bool = False) -> Campaign:
+    """Write the campaign bag at ``path`` from the raw frames of ``source``.
+
+    Good frames (alternating the source's frames) come first, last and between every two
+    cases. Returns the stamps written.
+    """
+    frames = load_stereo_frames(source, NS)
+    if not frames:
+        raise ValueError(f'{source} has no complete raw stereo frame under {NS}')
+    campaign = Campaign([], [])
+    step = round(STEP_S * 1e9)
+    stamp = START_NS
+    with BagWriter(path, overwrite=overwrite) as writer:
+        def put(frame: StereoFrame, at: int, keep: Keep = ALL) -> None:
+            sec, nanosec = divmod(at, 1_000_000_000)
+            for topic, msg, wanted in zip(TOPICS, frame, keep, strict=True):
+                if wanted:
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+                    writer.write(topic, msg, stamp)
+
+        for index, case in enumerate(CASES):
+            put(copy.deepcopy(frames[index % len(frames)]), stamp)
+            campaign.good.append(stamp)
+            stamp += step
+            frame = copy.deepcopy(frames[index % len(frames)])
+            case.spoil(frame)
+            at = stamp + round(case.stamp_offset_s * 1e9)
+            put(frame, at, case.keep)
+            campaign.cases.append((at, case))
+            stamp += step
+        put(copy.deepcopy(frames[0]), stamp)
+        campaign.good.append(stamp)
+    return campaign
