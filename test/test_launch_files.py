@@ -186,3 +186,9 @@ def test_a_mismatch_with_the_config_is_caught(tmp_path: Path,
     drifted.write_text(text)
     with pytest.raises(AssertionError, match=r'vs stereo_pipeline\.yaml'):
         check_launch_file(drifted, prefix, monkeypatch)
+
+
+def test_structured_light_pipeline_launch_mirrors_its_config() -> None:
+    launch = REPO / 'launch' / 'structured_light_pipeline.launch.py'
+    assert launch in LAUNCH_FILES
+    assert mirrored_config(launch, REPO) == REPO / 'config' / 'structured_light_pipeline.yaml'
