@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 import pytest
 import rclpy
@@ -140,10 +141,18 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert 'disparity_range (50) must be a multiple of 16 with the opencv' in rejected.reason
         assert node.params.values['P2'] == 900.0
         assert node.params.values['backend'] == 'census_sgm'
-        results = _set(peer, executor, disparity_range=64, uniqueness_ratio=5.0)
+        results = _set(peer, executor, disparity_range=64, uniqueness_ratio=5.0, threads=1)
         assert all(r.successful for r in results)
         node.on_frame(*_inputs())
         assert node.outbox['/disparity'].max_disparity == 63.0
+        assert numba.get_num_threads() == 1  # the kernels of this frame ran on one thread
+        one_thread = read_disparity(node.outbox['/disparity']).disparity.copy()
+        (result,) = _set(peer, executor, threads=0)
+        assert result.successful
+        node.on_frame(*_inputs())
+        assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
+        np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
+                                      one_thread)
     finally:
         executor.shutdown()
         peer.destroy_node()

@@ -28,6 +28,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import cv2
+import numba
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
@@ -91,6 +92,9 @@ PARAMETERS = [
     ParamSpec('subpixel', 'parabola', 'Sub-pixel refinement: parabola, equiangular or none',
               check=_one_of(list(SUBPIXEL_MODES))),
     ParamSpec('median_filter', False, '3x3 median on the left disparity'),
+    ParamSpec('threads', 0, 'Threads of the matcher (both backends); 0: every core. In a '
+              'graph of several processes on few cores, 1 wastes less CPU on waiting '
+              'threads (see the README, bench --live)', 0, 1024),
     ParamSpec('correlation_window_size', 5, 'opencv backend: block size (odd)', 1, 255,
               check=_odd),
     ParamSpec('full_dp', True, 'opencv backend: MODE_HH (8 paths) instead of MODE_SGBM'),
@@ -202,6 +206,7 @@ class SgmStereoNode(DepthNode):
             self.drop('range_too_wide', f'disparities {lo}..{lo + n - 1} do not fit an image '
                       f'{w} px wide')
             return
+        _use_threads(values['threads'])
         header = left_msg.header
         common = {'focal': stereo.focal, 'baseline': stereo.baseline, 'min_disparity': lo,
                   'max_disparity': lo + n - 1,
@@ -225,6 +230,13 @@ class SgmStereoNode(DepthNode):
         self.pub_disparity_right.publish(build_disparity(
             result.disparity_right, right_msg.header, delta_d=delta_d, **right_common))
         self.pub_cost_ratio.publish(array_to_image(result.cost_ratio, '32FC1', header))
+
+
+def _use_threads(threads: int) -> None:
+    """Run this thread's numba kernels and OpenCV with ``threads`` (0: every core)."""
+    cores = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+    numba.set_num_threads(min(threads, cores) if threads else cores)
+    cv2.setNumThreads(threads if threads else -1)
 
 
 def main(args: list[str] | None = None) -> None:

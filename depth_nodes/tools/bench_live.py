@@ -44,6 +44,8 @@ FIRST_FRAME_TIMEOUT_S = 300.0
 DRAIN_S = 10.0
 #: Seconds after which an unanswered warm-up frame is followed by another.
 RETRY_S = 5.0
+#: Seconds without a new output after which the remaining frames count as lost.
+QUIET_S = 2.0
 
 #: A stage: its name, the topics it consumes ('' = the published raw frame) and produces.
 Stage = tuple[str, tuple[str, ...], tuple[str, ...]]
@@ -96,10 +98,12 @@ class LiveBench:
     ours: LiveRun
     opencv: LiveRun | None
     target_hz: float = 10.0
+    threads: int = 0
 
     def format(self) -> str:
+        threads = f'{self.threads} thread(s)' if self.threads else 'every core'
         lines = ['live: 640x480, 128 disparities, 8 paths, one process per node over DDS '
-                 '(Fast DDS, localhost)', self.ours.format()]
+                 f'(Fast DDS, localhost), SGM node on {threads}', self.ours.format()]
         met = self.ours.fps >= 0.95 * self.target_hz and self.ours.received == self.ours.sent
         lines.append(f'  target {self.target_hz:g} Hz with nothing lost: '
                      f'{"met" if met else "NOT met"}')
@@ -132,7 +136,7 @@ def _percentile(values: list[float], q: float) -> float:
 
 def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame], *,
              rate: float, count: int, warmup: int, label: str, workdir: Path,
-             env: dict[str, str]) -> LiveRun:
+             env: dict[str, str], threads: int | None = None) -> LiveRun:
     """Run ``config`` as processes, feed ``warmup`` frames one at a time, then ``count``
     frames at ``rate`` Hz, and measure."""
     watch = sorted({t for _, _, outs in stages for t in outs})
@@ -153,7 +157,8 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 50)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    graph = GraphProcesses(config, workdir, env=env)
+    graph = GraphProcesses(config, workdir, env=env, overrides=(
+        {} if threads is None else {'sgm_stereo': {'threads': threads}}))
     try:
         graph.start()
         _wait(lambda: feeder.graph_ready(), FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
@@ -169,11 +174,17 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
                 time.sleep(delay)
             feeder.publish(frames[i % len(frames)], stamp)
             timed.append(stamp)
+        final_topic = stages[-1][2][0]
         deadline = time.monotonic() + DRAIN_S
         while time.monotonic() < deadline and not all(feeder.complete(s) for s in timed):
+            last = max(feeder.arrived[final_topic].values(), default=wall_start)
+            if time.monotonic() - last > QUIET_S:
+                break  # the graph has gone quiet: the rest was lost
             time.sleep(0.05)
         cpu_end = graph.cpu_seconds()
-        wall = time.monotonic() - wall_start
+        # CPU load over the time frames were in flight (publishing to the last output)
+        wall = max(max(feeder.arrived[final_topic].values(), default=0.0),
+                   wall_start + (count - 1) / rate) - wall_start
         time.sleep(1.5)  # one more diagnostics period
     finally:
         graph.stop()
@@ -181,8 +192,8 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
         node.destroy_node()
         rclpy.try_shutdown(context=context)
         spinner.join(timeout=5)
-    final = stages[-1][2][0]
-    done = sorted(feeder.arrived[final][s] for s in timed if s in feeder.arrived[final])
+    done = sorted(feeder.arrived[final_topic][s] for s in timed
+                  if s in feeder.arrived[final_topic])
     fps = (len(done) - 1) / (done[-1] - done[0]) if len(done) > 1 else 0.0
     latency = {}
     for name, inputs, outputs in [*stages, ('end to end', ('',), stages[-1][2])]:
@@ -243,8 +254,10 @@ def _wait(done: object, timeout: float, graph: GraphProcesses, what: str) -> Non
 
 
 def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
-               opencv: bool = True, bag: str | Path | None = None) -> LiveBench:
-    """Measure the stereo pipeline (and the OpenCV graph) as separate processes.
+               threads: int | None = None, opencv: bool = True,
+               bag: str | Path | None = None) -> LiveBench:
+    """Measure the stereo pipeline (and the OpenCV graph) as separate processes, the SGM
+    node of both with ``threads`` threads (0: every core; None: as the config says).
 
     Runs in its own ROS domain (derived from the process id, discovery on localhost) so it
     neither disturbs nor hears another graph.
@@ -262,11 +275,13 @@ def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
     with tempfile.TemporaryDirectory(prefix='depth_nodes_live_') as tmp:
         ours = run_live(config, OURS_STAGES, frames, rate=rate, count=count, warmup=warmup,
                         label='depth_nodes graph (census SGM + cross-check)',
-                        workdir=Path(tmp) / 'ours', env=env)
+                        workdir=Path(tmp) / 'ours', env=env, threads=threads)
         theirs = None
         if opencv:
             theirs = run_live(opencv_graph(config), OPENCV_STAGES, frames, rate=rate,
                               count=count, warmup=warmup,
                               label='OpenCV graph (StereoSGBM MODE_HH, no cross-check)',
-                              workdir=Path(tmp) / 'opencv', env=env)
-    return LiveBench(ours, theirs, target_hz=rate)
+                              workdir=Path(tmp) / 'opencv', env=env, threads=threads)
+    sgm = next(n for n in config.nodes if n.plugin == 'sgm_stereo')
+    used = sgm.parameters.get('threads', 0) if threads is None else threads
+    return LiveBench(ours, theirs, target_hz=rate, threads=used)

@@ -151,8 +151,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.live:
         from depth_nodes.tools.bench_live import bench_live
 
-        print(bench_live(rate=args.rate, count=args.frames or 50, opencv=not args.no_opencv,
-                         bag=args.bag).format())
+        print(bench_live(rate=args.rate, count=args.frames or 50, threads=args.threads,
+                         opencv=not args.no_opencv, bag=args.bag).format())
         return 0
     if args.stage is None:
         raise ConfigError('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
@@ -162,10 +162,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     from depth_nodes.tools.bench import bench_rectify, bench_sgm
 
-    cv2.setNumThreads(args.threads)
+    threads = 2 if args.threads is None else args.threads
+    cv2.setNumThreads(threads)
     import numba
 
-    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     if args.stage == 'rectify':
         print(bench_rectify(width=args.width, height=args.height, repeats=args.frames or 200,
                             interpolation=args.interpolation).format())
@@ -289,7 +290,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument('--height', type=int, default=480, help='rectify: frame height')
     bench.add_argument('--frames', type=int, help='timed repetitions (median); default 200 '
                        'for rectify, 10 for sgm, 50 frames for --live')
-    bench.add_argument('--threads', type=int, default=2, help='OpenCV and numba threads')
+    bench.add_argument('--threads', type=int,
+                       help='OpenCV and numba threads (default 2); --live: of the SGM node '
+                       '(0 = every core; default: as config/stereo_pipeline.yaml says)')
     bench.add_argument('--disparities', type=int, default=128, help='sgm: disparity range')
     bench.add_argument('--paths', type=int, default=8, help='sgm: 4, 8 or 16')
     bench.add_argument('--interpolation', default='linear',
