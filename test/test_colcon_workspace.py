@@ -267,7 +267,7 @@ def test_node_from_install_space_answers_parameter_services_and_rectifies_a_fram
         play = subprocess.run(
             [str(workspace.lib / 'depth-nodes'), 'play', str(BAG), '--topics',
              f'{CAMERA}/image_raw', f'{CAMERA}/camera_info', '--wait-for-subscribers',
-             str(WAIT)],
+             str(WAIT), '--delay', '1'],
             env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600, check=False)
         assert play.returncode == 0, play.stderr
         _spin_until(executor, lambda: len(received) == len(truth))

@@ -10,8 +10,7 @@ from rclpy.executors import MultiThreadedExecutor
 
 from conftest import REPO
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import load_graph_config
-from depth_nodes.tools.pipeline import create_nodes
+from depth_nodes.ros.graph import create_nodes, load_graph_config, load_params_file
 
 pytestmark = pytest.mark.ros
 
@@ -44,7 +43,7 @@ def test_a_params_file_overrides_the_config_and_a_typo_is_an_error(
     params = tmp_path / 'params.yaml'
     params.write_text('/stereo/sgm_stereo:\n  ros__parameters: {P2: 300.0}\n'
                       '/**:\n  ros__parameters: {diagnostics_period: 2.0}\n')
-    nodes = create_nodes(config, params, context=context)
+    nodes = create_nodes(config, load_params_file(params), context=context)
     try:
         by_name = {n.get_fully_qualified_name(): n for n in nodes}
         assert by_name['/stereo/sgm_stereo'].get_parameter('P2').value == 300.0
@@ -54,4 +53,4 @@ def test_a_params_file_overrides_the_config_and_a_typo_is_an_error(
             node.destroy_node()
     params.write_text('point_cloud:\n  ros__parameters: {max_rang: 3.0}\n')
     with pytest.raises(ConfigError, match='has no parameter max_rang'):
-        create_nodes(config, params, context=context)
+        create_nodes(config, load_params_file(params), context=context)

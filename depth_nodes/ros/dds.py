@@ -22,14 +22,14 @@ def use_large_message_profile(env: MutableMapping[str, str] | None = None) -> bo
     """Point Fast DDS at :data:`PROFILE` in ``env`` (default: this process's environment,
     so call it before ``rclpy.init``).
 
-    Nothing changes when a profile file is configured already (the user's choice wins) or
-    when ``RMW_IMPLEMENTATION`` names another middleware.
+    Nothing changes when a profile file is configured already (the user's choice wins),
+    when ``RMW_IMPLEMENTATION`` names another middleware, or when the file is missing.
 
     Returns:
         Whether the profile was set.
     """
     env = os.environ if env is None else env
-    if any(env.get(name) for name in PROFILE_VARIABLES):
+    if any(env.get(name) for name in PROFILE_VARIABLES) or not PROFILE.is_file():
         return False
     if not env.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp').startswith('rmw_fastrtps'):
         return False

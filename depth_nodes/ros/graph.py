@@ -238,3 +238,25 @@ def instantiate(spec: NodeSpec, params: dict[str, Any], *, required: set[str] | 
         raise ConfigError(f'node {spec.fully_qualified_name} ({spec.plugin}) has no parameter '
                           f'{", ".join(unknown)} (parameters: {known})')
     return node
+
+
+def create_nodes(config: GraphConfig, params: dict[str, dict[str, Any]] | None = None,
+                 **node_kwargs: Any) -> list[Any]:
+    """Instantiate every node of ``config``: its parameters from the config, then from
+    ``params`` (a loaded parameter file, see :func:`load_params_file`).
+
+    Raises:
+        ConfigError: As :func:`instantiate`; the nodes created so far are destroyed first.
+    """
+    params = params or {}
+    nodes: list[Any] = []
+    try:
+        for spec in config.nodes:
+            nodes.append(instantiate(spec, parameters_for(spec, params),
+                                     required=addressed_parameters(spec, params),
+                                     **node_kwargs))
+    except BaseException:
+        for node in nodes:
+            node.destroy_node()
+        raise
+    return nodes

@@ -17,6 +17,7 @@ import statistics
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -161,7 +162,7 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
         {} if threads is None else {'sgm_stereo': {'threads': threads}}))
     try:
         graph.start()
-        _wait(lambda: feeder.graph_ready(), FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
+        _wait(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
         stamp = warm_up(feeder, frames, graph, warmup)
         time.sleep(1.5)  # a diagnostics period: the drops so far are the warm-up's
         drops_before = dict(last_status)
@@ -244,9 +245,10 @@ def _check_alive(graph: GraphProcesses) -> None:
                           f'{graph.log(name)[-2000:]}')
 
 
-def _wait(done: object, timeout: float, graph: GraphProcesses, what: str) -> None:
+def _wait(done: Callable[[], bool], timeout: float, graph: GraphProcesses,
+          what: str) -> None:
     deadline = time.monotonic() + timeout
-    while not done():  # type: ignore[operator]
+    while not done():
         _check_alive(graph)
         if time.monotonic() > deadline:
             raise ConfigError(f'bench --live: timed out after {timeout:g} s waiting for {what}')

@@ -17,6 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from sensor_msgs.msg import Image
+
 from depth_nodes.tools.bagio import BagWriter
 from depth_nodes.tools.live_graph import StereoFrame, load_stereo_frames
 
@@ -52,30 +54,31 @@ class Case:
     stamp_offset_s: float = 0.0
 
 
-def _left_image(change: Callable[..., None]) -> Callable[[StereoFrame], None]:
+def _left_image(change: Callable[[Image], None]) -> Callable[[StereoFrame], None]:
+    """A case that spoils the left image."""
     return lambda frame: change(frame[0])
 
 
-def _unknown_encoding(image: object) -> None:
-    image.encoding = 'yuv_sideways'  # type: ignore[attr-defined]
+def _unknown_encoding(image: Image) -> None:
+    image.encoding = 'yuv_sideways'
 
 
-def _mono_as_rgb(image: object) -> None:
-    image.encoding = 'rgb8'  # type: ignore[attr-defined]  # 1 byte/pixel data, 3 declared
+def _mono_as_rgb(image: Image) -> None:
+    image.encoding = 'rgb8'  # 1 byte a pixel of data, 3 declared
 
 
-def _step_disagrees(image: object) -> None:
-    image.step = image.width + 7  # type: ignore[attr-defined]
+def _step_disagrees(image: Image) -> None:
+    image.step = image.width + 7
 
 
-def _empty_data(image: object) -> None:
-    image.data = []  # type: ignore[attr-defined]
+def _empty_data(image: Image) -> None:
+    image.data = []
 
 
-def _huge(image: object) -> None:
-    image.width = image.height = 1_000_000  # type: ignore[attr-defined]
-    image.step = 1_000_000  # type: ignore[attr-defined]
-    image.data = bytes(64)  # type: ignore[attr-defined]
+def _huge(image: Image) -> None:
+    image.width = image.height = 1_000_000
+    image.step = 1_000_000
+    image.data = bytes(64)
 
 
 def _zero_k(frame: StereoFrame) -> None:

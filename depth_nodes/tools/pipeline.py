@@ -19,36 +19,7 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import (
-    GraphConfig,
-    addressed_parameters,
-    instantiate,
-    load_graph_config,
-    load_params_file,
-    parameters_for,
-)
-
-
-def create_nodes(config: GraphConfig, params_file: str | Path | None = None, *,
-                 context: Context | None = None) -> list[Any]:
-    """Instantiate every node of ``config`` (parameters from the config, then the file).
-
-    Raises:
-        ConfigError: A plugin, parameter or parameter file is invalid (nodes created so far
-            are destroyed first).
-    """
-    params = load_params_file(params_file) if params_file else {}
-    nodes: list[Any] = []
-    try:
-        for spec in config.nodes:
-            nodes.append(instantiate(spec, parameters_for(spec, params),
-                                     required=addressed_parameters(spec, params),
-                                     context=context))
-    except BaseException:
-        for node in nodes:
-            node.destroy_node()
-        raise
-    return nodes
+from depth_nodes.ros.graph import create_nodes, load_graph_config, load_params_file
 
 
 def run_pipeline(config_path: str | Path, *, params_file: str | Path | None = None,
@@ -79,7 +50,8 @@ def run_pipeline(config_path: str | Path, *, params_file: str | Path | None = No
     nodes: list[Any] = []
     executor = None
     try:
-        nodes = create_nodes(config, params_file, context=context)
+        params = load_params_file(params_file) if params_file else {}
+        nodes = create_nodes(config, params, context=context)
         executor = MultiThreadedExecutor(num_threads=threads or max(2, len(nodes)),
                                          context=context)
         for node in nodes:

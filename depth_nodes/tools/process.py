@@ -21,11 +21,9 @@ from rclpy.context import Context
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.graph import (
     GraphConfig,
-    addressed_parameters,
-    instantiate,
+    create_nodes,
     load_graph_config,
     load_params_file,
-    parameters_for,
 )
 from depth_nodes.tools.bagio import BagReader, BagWriter, message_type_name
 
@@ -164,10 +162,7 @@ def process_bag(
     rclpy.init(args=[], context=context)
     nodes: list[Any] = []
     try:
-        for spec in config.nodes:
-            nodes.append(instantiate(spec, parameters_for(spec, params),
-                                     required=addressed_parameters(spec, params),
-                                     context=context))
+        nodes = create_nodes(config, params, context=context)
         report.nodes = [n.get_fully_qualified_name() for n in nodes]
         routes: dict[str, list[Any]] = {}
         produced: set[str] = set()
