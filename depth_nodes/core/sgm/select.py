@@ -20,7 +20,6 @@ import math
 from typing import Any
 
 import numpy as np
-from llvmlite import ir  # type: ignore[import-untyped]
 from numba import njit, prange, types
 from numba.extending import intrinsic
 from numpy.typing import NDArray
@@ -70,11 +69,10 @@ def _key_intrinsic(typingctx: Any, cost: Any, k: Any) -> Any:
     """
     if cost not in (types.uint8, types.uint16) or k not in types.integer_domain:
         return None
-    i32 = ir.IntType(32)
-
     def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         value, index = args
-        high = builder.shl(builder.zext(value, i32), ir.Constant(i32, 16))
+        i32 = context.get_value_type(types.uint32)
+        high = builder.shl(builder.zext(value, i32), context.get_constant(types.uint32, 16))
         low = builder.trunc(index, i32) if k.bitwidth > 32 else builder.zext(index, i32)
         return builder.or_(high, low)
 
