@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,11 +46,12 @@ SGM = '/stereo/sgm_stereo'
 
 class _Live:
     def __init__(self, feeder: StereoFeeder, frames: list[StereoFrame],
-                 pipeline: subprocess.Popen[str], env: dict[str, str]) -> None:
+                 pipeline: subprocess.Popen[str], env: dict[str, str], log: Path) -> None:
         self.feeder = feeder
         self.frames = frames
         self.pipeline = pipeline
         self.env = env
+        self.log = log
         self.stamp = 10 * 1_000_000_000
 
     def frame(self, index: int, timeout: float = 120) -> int:
@@ -61,11 +63,14 @@ class _Live:
             self.feeder.publish(self.frames[index % len(self.frames)], self.stamp)
             retry = time.monotonic() + 5
             while time.monotonic() < retry:
-                assert self.pipeline.poll() is None, self.pipeline.communicate()
+                assert self.pipeline.poll() is None, self.log.read_text()
                 if self.feeder.complete(self.stamp):
                     return self.stamp
                 time.sleep(0.02)
-        raise AssertionError(f'no complete output within {timeout} s')
+        arrived = {t: sorted(a)[-3:] for t, a in self.feeder.arrived.items()}
+        raise AssertionError(f'no complete output within {timeout} s (last stamp '
+                             f'{self.stamp}; latest arrivals {arrived}); the pipeline '
+                             f'printed:\n{self.log.read_text()[-4000:]}')
 
     def param(self, *args: str) -> subprocess.CompletedProcess[str]:
         """`depth-nodes param ARGS`, as a user types it."""
@@ -105,7 +110,7 @@ class _Live:
 
 
 @pytest.fixture(scope='module')
-def live() -> Iterator[_Live]:
+def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[_Live]:
     from conftest import _DOMAINS
 
     patch = pytest.MonkeyPatch()
@@ -113,10 +118,12 @@ def live() -> Iterator[_Live]:
     patch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     patch.delenv('ROS_STATIC_PEERS', raising=False)
     env = dict(os.environ)
-    pipeline = subprocess.Popen(
-        [sys.executable, '-m', 'depth_nodes.tools.cli', 'pipeline', '--config',
-         str(REPO / 'config' / 'stereo_pipeline.yaml')],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO)
+    log = tmp_path_factory.mktemp('live') / 'pipeline.log'
+    with log.open('w') as stream:
+        pipeline = subprocess.Popen(
+            [sys.executable, '-m', 'depth_nodes.tools.cli', 'pipeline', '--config',
+             str(REPO / 'config' / 'stereo_pipeline.yaml')],
+            stdout=stream, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO)
     context = Context()
     rclpy.init(args=[], context=context)
     node = rclpy.create_node('live_graph_test', context=context)
@@ -128,16 +135,17 @@ def live() -> Iterator[_Live]:
     try:
         deadline = time.monotonic() + 120
         while not feeder.graph_ready():
-            assert pipeline.poll() is None, pipeline.communicate()
+            assert pipeline.poll() is None, log.read_text()
             assert time.monotonic() < deadline, 'the composed graph did not connect'
             time.sleep(0.05)
-        state = _Live(feeder, load_stereo_frames(REPO / 'bags' / 'stereo_vga'), pipeline, env)
+        state = _Live(feeder, load_stereo_frames(REPO / 'bags' / 'stereo_vga'), pipeline, env,
+                      log)
         state.frame(0, timeout=300)  # warm-up: numba may compile on a fresh clone
         yield state
     finally:
         pipeline.send_signal(signal.SIGINT)
         try:
-            pipeline.communicate(timeout=30)
+            pipeline.wait(timeout=30)
         except subprocess.TimeoutExpired:
             pipeline.kill()
         executor.shutdown()
