@@ -52,6 +52,8 @@ class _Live:
         self.pipeline = pipeline
         self.env = env
         self.log = log
+        self.clients: dict[str, Any] = {}
+        self.spinner: threading.Thread
         self.stamp = 10 * 1_000_000_000
 
     def frame(self, index: int, timeout: float = 120) -> int:
@@ -64,6 +66,7 @@ class _Live:
             retry = time.monotonic() + 5
             while time.monotonic() < retry:
                 assert self.pipeline.poll() is None, self.log.read_text()
+                assert self.spinner.is_alive(), 'the test\'s executor thread died'
                 if self.feeder.complete(self.stamp):
                     return self.stamp
                 time.sleep(0.02)
@@ -78,20 +81,23 @@ class _Live:
 
     def set(self, node: str, **values: Any) -> list[Any]:
         """Set parameters through the node's set_parameters service from this process
-        (what `param set` does, without starting a process per value)."""
-        client = self.feeder.node.create_client(SetParameters, f'{node}/set_parameters')
-        try:
-            assert client.wait_for_service(timeout_sec=30)
-            request = SetParameters.Request(parameters=[
-                Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
-            future = client.call_async(request)
-            deadline = time.monotonic() + 30
-            while not future.done() and time.monotonic() < deadline:
-                time.sleep(0.01)
-            assert future.done(), f'{node}/set_parameters did not answer'
-            return list(future.result().results)
-        finally:
-            self.feeder.node.destroy_client(client)
+        (what `param set` does, without starting a process per value).
+
+        Clients are kept: destroying one while the executor thread waits on it can break
+        that thread."""
+        if node not in self.clients:
+            self.clients[node] = self.feeder.node.create_client(SetParameters,
+                                                                f'{node}/set_parameters')
+        client = self.clients[node]
+        assert client.wait_for_service(timeout_sec=30)
+        request = SetParameters.Request(parameters=[
+            Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+        future = client.call_async(request)
+        deadline = time.monotonic() + 30
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert future.done(), f'{node}/set_parameters did not answer'
+        return list(future.result().results)
 
     def disparity(self, stamp: int) -> Any:
         return read_disparity(self.feeder.message('/stereo/disparity', stamp, DisparityImage))
@@ -140,6 +146,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[_Live]:
             time.sleep(0.05)
         state = _Live(feeder, load_stereo_frames(REPO / 'bags' / 'stereo_vga'), pipeline, env,
                       log)
+        state.spinner = spinner
         state.frame(0, timeout=300)  # warm-up: numba may compile on a fresh clone
         yield state
     finally:
