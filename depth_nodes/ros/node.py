@@ -1,6 +1,7 @@
 """The base class of every depth_nodes node.
 
-It adds three things to ``rclpy.node.Node``, all of which the offline bag harness relies on:
+It adds to ``rclpy.node.Node`` what every node here shares (the offline bag harness relies
+on the first three):
 
 * inputs and outputs are declared through :meth:`DepthNode.add_input` and
   :meth:`DepthNode.add_output`, so a harness can see which topics a node consumes and can
