@@ -116,7 +116,7 @@ def replay(tmp_path_factory: pytest.TempPathFactory) -> Iterator[_Replay]:
         time.sleep(1.5)  # three diagnostics periods: the warm-up's drops are in
         baseline = {name: dict(counts) for name, counts in drops.items()}
         played = run_cli(['play', str(tmp / 'bad'), '--wait-for-subscribers', '60',
-                          '--delay', '1'], env=env, timeout=300)
+                          '--delay', '3'], env=env, timeout=300)
         assert played.returncode == 0, played.stderr
         last_good = max(campaign.good)
         deadline = time.monotonic() + 120
@@ -190,9 +190,13 @@ def test_each_hostile_message_is_counted_by_reason(replay: _Replay) -> None:
     for node, expected in replay.campaign.expected_drops().items():
         for reason, count in expected.items():
             assert final[node].get(reason) == count, (node, reason, final[node])
-    # the first stage rejects nothing but what the campaign says
+    # The first stage rejects nothing but what the campaign says, except that a lead-in
+    # frame may lose a message to a subscription that had not matched the player yet.
+    lead_in = len(replay.campaign.lead_in)
     for node in ('/stereo/left/rectify_left', '/stereo/right/rectify_right'):
-        assert final[node] == dict(replay.campaign.expected_drops().get(node, {})), final[node]
+        counts = dict(final[node])
+        assert counts.pop('sync_unmatched', 0) <= lead_in, final[node]
+        assert counts == dict(replay.campaign.expected_drops().get(node, {})), final[node]
     # the unpaired frames and the frames the rectifiers refused never complete a set
     assert final['/stereo/sgm_stereo'].get('sync_unmatched', 0) >= 1
     assert final['/stereo/point_cloud'].get('sync_unmatched', 0) >= 1

@@ -14,7 +14,7 @@ from __future__ import annotations
 import copy
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from sensor_msgs.msg import Image
@@ -27,8 +27,12 @@ TOPICS = (f'{NS}/left/image_raw', f'{NS}/left/camera_info', f'{NS}/right/image_r
           f'{NS}/right/camera_info')
 #: Seconds between two stamps of the campaign (more than a frame takes to go through).
 STEP_S = 0.5
-#: Bag time of the first message.
+#: Stamp of the first campaign frame.
 START_NS = 100 * 1_000_000_000
+#: Good frames before START_NS. A player's first messages can reach a subscriber that has
+#: not yet matched the new publisher (DDS matches the two ends one after the other), so the
+#: campaign proper starts once these have gone through.
+LEAD_IN = 2
 
 #: Which messages of a case are written: all four, or only one side.
 Keep = tuple[bool, bool, bool, bool]
@@ -135,10 +139,11 @@ CASES: tuple[Case, ...] = (
 
 @dataclass
 class Campaign:
-    """What was written: stamps of the good frames and of each case."""
+    """What was written: stamps of the lead-in frames, the good frames and each case."""
 
     good: list[int]
     cases: list[tuple[int, Case]]
+    lead_in: list[int] = field(default_factory=list)
 
     def expected_drops(self) -> dict[str, Counter[str]]:
         """Per node, the drops the cases must cause at the first node seeing them."""
@@ -161,7 +166,7 @@ def write_bad_input_bag(path: str | Path, source: str | Path, *,
         raise ValueError(f'{source} has no complete raw stereo frame under {NS}')
     campaign = Campaign([], [])
     step = round(STEP_S * 1e9)
-    stamp = START_NS
+    stamp = START_NS - LEAD_IN * step
     with BagWriter(path, overwrite=overwrite) as writer:
         def put(frame: StereoFrame, at: int, keep: Keep = ALL) -> None:
             sec, nanosec = divmod(at, 1_000_000_000)
@@ -170,6 +175,10 @@ def write_bad_input_bag(path: str | Path, source: str | Path, *,
                     msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
                     writer.write(topic, msg, stamp)
 
+        for index in range(LEAD_IN):
+            put(copy.deepcopy(frames[index % len(frames)]), stamp)
+            campaign.lead_in.append(stamp)
+            stamp += step
         for index, case in enumerate(CASES):
             put(copy.deepcopy(frames[index % len(frames)]), stamp)
             campaign.good.append(stamp)
