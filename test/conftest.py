@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ import rclpy
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 REPO = Path(__file__).resolve().parents[1]
@@ -68,6 +70,22 @@ def set_parameters(peer: Any, executor: Any, node: str, **values: Any) -> list[S
     executor.spin_until_future_complete(future, timeout_sec=30)
     assert future.done(), f'{node}/set_parameters did not answer'
     return list(future.result().results)
+
+
+@contextlib.contextmanager
+def tuner(node: Any, context: Context) -> Iterator[Callable[..., list[SetParametersResult]]]:
+    """A peer node and executor around ``node``; yields ``tune(**values)``, which sets
+    ``node``'s parameters through its set_parameters service (see :func:`set_parameters`)."""
+    peer = rclpy.create_node('tuner', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(peer)
+    try:
+        yield lambda **values: set_parameters(peer, executor,
+                                              node.get_fully_qualified_name(), **values)
+    finally:
+        executor.shutdown()
+        peer.destroy_node()
 
 
 #: Disparity window per bundled stereo bag: 128 at 640 px, 64 on the 320 px ones (OpenCV is

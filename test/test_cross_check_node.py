@@ -10,12 +10,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from conftest import STEREO_RANGES, set_parameters
+from conftest import STEREO_RANGES, tuner
 from depth_nodes.core.cross_check import cross_check
 from depth_nodes.core.metrics import sparsification_auc
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
@@ -152,14 +150,10 @@ def test_stamps_that_never_match_are_counted(node: Any) -> None:
 
 def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
                                                             context: Context) -> None:
-    peer = rclpy.create_node('tuner', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    executor.add_node(peer)
-    try:
+    with tuner(node, context) as tune:
         node.on_frame(*_inputs())
         before = read_disparity(node.outbox['/disparity_checked']).disparity
-        results = set_parameters(peer, executor, '/cross_check', disp12_max_diff=3,
+        results = tune(disp12_max_diff=3,
                                  speckle_size=0, fill_holes=True, confidence_window=3)
         assert all(r.successful for r in results), results
         node.on_frame(*_inputs())
@@ -174,16 +168,13 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
                 ('disp12_max_diff', 100.0, 'must be in [0.05, 64]'),
                 ('disp12_max_diff', 'one', 'must be a number'),
                 ('speckle_range', -1, 'must be in [0, 64]')]:
-            (result,) = set_parameters(peer, executor, '/cross_check', **{name: value})
+            (result,) = tune(**{name: value})
             assert not result.successful
             assert reason in result.reason, result.reason
-        (result,) = set_parameters(peer, executor, '/cross_check', queue_size=9)
+        (result,) = tune(queue_size=9)
         assert not result.successful  # read-only
         assert node.params.values['confidence_window'] == 3
         assert node.params.values['disp12_max_diff'] == 3
-    finally:
-        executor.shutdown()
-        peer.destroy_node()
 
 
 def test_bad_start_up_value_is_an_error(context: Context) -> None:

@@ -12,14 +12,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_typestore
 
-from conftest import set_parameters
+from conftest import tuner
 from depth_nodes.errors import ConfigError
 from depth_nodes.nodes.point_cloud import PointCloudNode
 from depth_nodes.ros.camera_info import model_to_camera_info
@@ -308,18 +306,10 @@ def test_missing_camera_info_is_counted(node: Any) -> None:
     assert node.drops['sync_queue_full'] >= 2
 
 
-def _set(peer: Any, executor: Any, **values: Any) -> Any:
-    return set_parameters(peer, executor, '/point_cloud', **values)
-
-
 def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
                                                             context: Context) -> None:
-    peer = rclpy.create_node('tuner', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    executor.add_node(peer)
-    try:
-        results = _set(peer, executor, avoid_point_cloud_padding=True, depth_encoding='16UC1',
+    with tuner(node, context) as tune:
+        results = tune(avoid_point_cloud_padding=True, depth_encoding='16UC1',
                        extra_fields='depth_std', max_range=3.0)
         assert all(r.successful for r in results), [r.reason for r in results]
         node.on_frame(**_inputs())
@@ -337,14 +327,11 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
             ({'use_color': False}, 'read-only'),
             ({'queue_size': 9}, 'read-only'),
         ]:
-            (result,) = _set(peer, executor, **values)
+            (result,) = tune(**values)
             assert not result.successful, values
             assert reason in result.reason, (values, result.reason)
         assert node.params.values['extra_fields'] == 'depth_std'
         assert node.params.values['min_range'] == 0.0
-    finally:
-        executor.shutdown()
-        peer.destroy_node()
 
 
 def test_bench_reports_times_and_sizes(ros_env: dict[str, str]) -> None:

@@ -15,7 +15,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import CameraInfo, Image
 
-from conftest import set_parameters
+from conftest import tuner
 from depth_nodes.core.rectify import Rectifier
 from depth_nodes.nodes.rectify import RectifyNode
 from depth_nodes.ros.camera_info import model_to_camera_info
@@ -104,37 +104,25 @@ def test_unmatched_stamps_are_counted(node: Any) -> None:
     assert node.drops == {'sync_unmatched': 1}
 
 
-def _set(client_node: Any, executor: Any, name: str, value: Any) -> Any:
-    (result,) = set_parameters(client_node, executor, '/rectify', **{name: value})
-    return result
-
-
 def test_interpolation_changes_through_the_parameter_service(node: Any,
                                                              context: Context) -> None:
-    peer = rclpy.create_node('tuner', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    executor.add_node(peer)
-    try:
+    with tuner(node, context) as tune:
         maps = Rectifier().maps(FRAME.left_camera)
         for value, flag in (('nearest', cv2.INTER_NEAREST), (2, cv2.INTER_CUBIC),
                             ('lanczos4', cv2.INTER_LANCZOS4)):
-            result = _set(peer, executor, 'interpolation', value)
+            (result,) = tune(interpolation=value)
             assert result.successful, result.reason
             node.outbox.clear()
             node.on_frame(*_pair())
             expected = cv2.remap(FRAME.left_raw, *maps, flag)
             np.testing.assert_array_equal(image_to_array(node.outbox[0][1]), expected)
-        rejected = _set(peer, executor, 'interpolation', 'bilinear')
+        (rejected,) = tune(interpolation='bilinear')
         assert not rejected.successful
         assert 'interpolation must be one of nearest' in rejected.reason
         assert node.get_parameter('interpolation').value == 'lanczos4'
-        read_only = _set(peer, executor, 'queue_size', 9)
+        (read_only,) = tune(queue_size=9)
         assert not read_only.successful
         assert node.get_parameter('queue_size').value == 5
-    finally:
-        executor.shutdown()
-        peer.destroy_node()
 
 
 def test_bad_startup_parameter_is_a_clear_error(ros_env: dict[str, str]) -> None:

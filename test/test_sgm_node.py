@@ -7,12 +7,10 @@ from typing import Any
 import numba
 import numpy as np
 import pytest
-import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
-from conftest import set_parameters
+from conftest import tuner
 from depth_nodes.core.baseline import opencv_sgbm
 from depth_nodes.core.sgm import SgmMatcher
 from depth_nodes.nodes.sgm_stereo import SgmStereoNode, opencv_settings, sgm_params
@@ -107,20 +105,12 @@ def test_missing_camera_info_is_counted(node: Any) -> None:
     assert node.drops['sync_queue_full'] >= 2
 
 
-def _set(peer: Any, executor: Any, **values: Any) -> Any:
-    return set_parameters(peer, executor, '/sgm_stereo', **values)
-
-
 def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
                                                             context: Context) -> None:
-    peer = rclpy.create_node('tuner', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    executor.add_node(peer)
-    try:
+    with tuner(node, context) as tune:
         node.on_frame(*_inputs())
         before = read_disparity(node.outbox['/disparity']).disparity.copy()
-        (result,) = _set(peer, executor, P2=900.0)
+        (result,) = tune(P2=900.0)
         assert result.successful, result.reason
         node.on_frame(*_inputs())
         after = read_disparity(node.outbox['/disparity']).disparity
@@ -128,34 +118,31 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         expected = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
                                                                    FRAME.right_rect_gt)
         np.testing.assert_array_equal(after, expected.disparity)
-        (rejected,) = _set(peer, executor, P1=1000.0)
+        (rejected,) = tune(P1=1000.0)
         assert not rejected.successful
         assert 'P2 (900.0) must be >= P1 (1000.0)' in rejected.reason
-        (rejected,) = _set(peer, executor, paths=6)
+        (rejected,) = tune(paths=6)
         assert not rejected.successful
         assert 'must be 4, 8 or 16' in rejected.reason
-        (accepted,) = _set(peer, executor, disparity_range=50)  # any range for census_sgm
+        (accepted,) = tune(disparity_range=50)  # any range for census_sgm
         assert accepted.successful
-        (rejected,) = _set(peer, executor, backend='opencv')
+        (rejected,) = tune(backend='opencv')
         assert not rejected.successful
         assert 'disparity_range (50) must be a multiple of 16 with the opencv' in rejected.reason
         assert node.params.values['P2'] == 900.0
         assert node.params.values['backend'] == 'census_sgm'
-        results = _set(peer, executor, disparity_range=64, uniqueness_ratio=5.0, threads=1)
+        results = tune(disparity_range=64, uniqueness_ratio=5.0, threads=1)
         assert all(r.successful for r in results)
         node.on_frame(*_inputs())
         assert node.outbox['/disparity'].max_disparity == 63.0
         assert numba.get_num_threads() == 1  # the kernels of this frame ran on one thread
         one_thread = read_disparity(node.outbox['/disparity']).disparity.copy()
-        (result,) = _set(peer, executor, threads=0)
+        (result,) = tune(threads=0)
         assert result.successful
         node.on_frame(*_inputs())
         assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
         np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
                                       one_thread)
-    finally:
-        executor.shutdown()
-        peer.destroy_node()
 
 
 def test_opencv_backend_matches_stereosgbm(context: Context) -> None:
