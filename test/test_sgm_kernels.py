@@ -8,6 +8,7 @@ import pytest
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import aggregate_reference
 from depth_nodes.core.sgm.cost import (
+    census_dtype,
     census_transform,
     census_transform_reference,
     cost_volume,
@@ -31,6 +32,21 @@ def test_census_matches_reference(window: tuple[int, int]) -> None:
                                   census_transform_reference(left, window))
 
 
+@pytest.mark.parametrize(('window', 'dtype'), [((5, 5), np.uint32), ((3, 11), np.uint32),
+                                                ((5, 7), np.uint64), ((9, 7), np.uint64)])
+def test_census_uses_32_bits_when_the_window_fits(window: tuple[int, int],
+                                                  dtype: type) -> None:
+    left, _ = _pair()
+    assert census_dtype(window) is dtype
+    assert census_transform(left, window).dtype == dtype
+
+
+def test_census_rejects_a_buffer_too_narrow_for_the_window() -> None:
+    left, _ = _pair()
+    with pytest.raises(ValueError, match='fewer bits'):
+        census_transform(left, (5, 7), np.empty(left.shape, np.uint32))
+
+
 @pytest.mark.parametrize('window', [(5, 5), (7, 9)])
 def test_mirrored_census_is_the_census_flipped(window: tuple[int, int]) -> None:
     left, _ = _pair()
@@ -47,13 +63,17 @@ def test_mirrored_census_is_the_census_flipped(window: tuple[int, int]) -> None:
 ])
 @pytest.mark.parametrize('min_disparity', [0, -4, 3])
 @pytest.mark.parametrize('image_type', ['uint8', 'float32'])
+@pytest.mark.parametrize(('window', 'disparities'), [((5, 7), 11), ((5, 5), 35)])
 def test_cost_volume_matches_reference(settings: dict[str, object], min_disparity: int,
-                                       image_type: str) -> None:
+                                       image_type: str, window: tuple[int, int],
+                                       disparities: int) -> None:
+    """(5, 7) has 34 neighbours: a 64-bit census; (5, 5) a 32-bit one, and 35 disparities
+    run the kernel's vector loop body as well as its remainder."""
     left, right = _pair()
     if image_type == 'float32':  # fractional intensities
         left, right = left + np.float32(0.25), right * np.float32(0.97)
-    kwargs = {'min_disparity': min_disparity, 'disparity_range': 11,
-              'census_window': (5, 7), **settings}
+    kwargs = {'min_disparity': min_disparity, 'disparity_range': disparities,
+              'census_window': window, **settings}
     np.testing.assert_array_equal(cost_volume(left, right, **kwargs),
                                   cost_volume_reference(left, right, **kwargs))
 

@@ -23,7 +23,7 @@ from depth_nodes.core.sgm.aggregate import (
     p2_table,
     sweep_down,
 )
-from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST, cost_volume
+from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST, census_dtype, cost_volume
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, upward_horizontal_select
 
 F32 = NDArray[np.float32]
@@ -149,7 +149,7 @@ class SgmMatcher:
 
     def __init__(self, params: SgmParams | None = None) -> None:
         self.params = (params or SgmParams()).validate()
-        self._shape: tuple[int, ...] = ()
+        self._shape: tuple[object, ...] = ()
         self._table_key: tuple[Any, ...] = ()
         self._table = p2_table(0, 0, 0.0)
         self._buf: dict[str, Any] = {}
@@ -164,11 +164,12 @@ class SgmMatcher:
         n = p.disparity_range
         dirs = VERTICAL_DIRECTIONS[p.paths]
         threads = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
-        shape = (h, w, n, p.paths, threads)
+        census = census_dtype((p.census_height, p.census_width))
+        shape = (h, w, n, p.paths, threads, census)
         if shape != self._shape:
             rings, mbuf = new_line_buffers(len(dirs), w, n)
             self._buf = {
-                'census': (np.empty((h, w), np.uint64), np.empty((h, w), np.uint64)),
+                'census': (np.empty((h, w), census), np.empty((h, w), census)),
                 'cost': np.empty((h, w, n), np.uint8),
                 'partial': np.empty((h, w, n), np.uint16),
                 'rings': rings, 'mbuf': mbuf,
