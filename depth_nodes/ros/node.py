@@ -39,6 +39,7 @@ from depth_nodes.errors import CalibrationError, DepthNodesError, MessageError, 
 from depth_nodes.ros.camera_info import StereoInfoCache
 from depth_nodes.ros.dds import use_large_message_profile
 from depth_nodes.ros.image import image_to_array
+from depth_nodes.ros.memory import keep_freed_memory
 from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchronizer
 
 #: Publishers keep this many messages by default (reliable, volatile).
@@ -379,6 +380,7 @@ def run_node(node_class: type[DepthNode], args: list[str] | None = None) -> int:
         The process exit status: 0, or 1 when the node could not start (bad parameters).
     """
     use_large_message_profile()
+    keep_freed_memory()
     rclpy.init(args=args)
     node = None
     try:

@@ -311,8 +311,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     args.ros_args = ros_args
     from depth_nodes.ros.dds import use_large_message_profile
+    from depth_nodes.ros.memory import keep_freed_memory
 
     use_large_message_profile()  # before any rclpy.init: live commands move large messages
+    keep_freed_memory()  # and without a page fault per 4 KiB of each (ros/memory.py)
     if ros_args and args.command != 'pipeline':
         print(f'depth-nodes {args.command}: error: --ros-args is only accepted by pipeline',
               file=sys.stderr)
