@@ -75,6 +75,10 @@ class LiveRun:
     latency_ms: dict[str, tuple[float, float]]
     cpu_percent: dict[str, float]
     node_drops: dict[str, int] = field(default_factory=dict)
+    #: Mean callback time per frame of each node (from /diagnostics), ms.
+    processing_ms: dict[str, float] = field(default_factory=dict)
+    #: CPU load of this process (publishing the frames, receiving every output).
+    bench_cpu_percent: float = 0.0
 
     def format(self) -> str:
         lost = self.sent - self.received
@@ -86,7 +90,12 @@ class LiveRun:
         load = ', '.join(f'{name.rsplit("/", 1)[-1]} {pct:.0f}%'
                          for name, pct in self.cpu_percent.items())
         lines.append(f'  CPU (100% = one core): {load}; total '
-                     f'{sum(self.cpu_percent.values()):.0f}% of 200%')
+                     f'{sum(self.cpu_percent.values()):.0f}% of 200%, and this bench '
+                     f'process (publisher, subscribers) {self.bench_cpu_percent:.0f}%')
+        if self.processing_ms:
+            times = ', '.join(f'{name.rsplit("/", 1)[-1]} {ms:.1f}'
+                              for name, ms in self.processing_ms.items())
+            lines.append(f'  processing per frame (ms, callbacks, from /diagnostics): {times}')
         drops = ', '.join(f'{n} {c}' for n, c in self.node_drops.items() if c) or 'none'
         lines.append(f'  drops reported on /diagnostics: {drops}')
         return '\n'.join(lines)
@@ -148,12 +157,18 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
     executor.add_node(node)
     feeder = StereoFeeder(node, NS, watch)
     last_status: dict[str, int] = {}
+    timing = threading.Event()  # set while the timed frames are in flight
+    processing: dict[str, list[tuple[int, float]]] = {}  # (frames, mean ms) per period
 
     def on_diagnostics(array: DiagnosticArray) -> None:
         for status in array.status:
             values = {kv.key: kv.value for kv in status.values}
             if 'drops total' in values:
                 last_status[status.name] = int(values['drops total'])
+            frames = int(values.get('frames processed', '0'))
+            if timing.is_set() and frames:
+                processing.setdefault(status.name, []).append(
+                    (frames, float(values['processing time mean (ms)'])))
 
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 50)
     spinner = threading.Thread(target=executor.spin, daemon=True)
@@ -167,6 +182,8 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
         time.sleep(1.5)  # a diagnostics period: the drops so far are the warm-up's
         drops_before = dict(last_status)
         cpu_start, wall_start = graph.cpu_seconds(), time.monotonic()
+        own_cpu_start = time.process_time()
+        timing.set()
         timed = []
         for i in range(count):
             stamp += 100_000_000
@@ -183,6 +200,8 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
                 break  # the graph has gone quiet: the rest was lost
             time.sleep(0.05)
         cpu_end = graph.cpu_seconds()
+        own_cpu = time.process_time() - own_cpu_start
+        timing.clear()
         # CPU load over the time frames were in flight (publishing to the last output)
         wall = max(max(feeder.arrived[final_topic].values(), default=0.0),
                    wall_start + (count - 1) / rate) - wall_start
@@ -208,7 +227,10 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
             latency[name] = (statistics.median(values), _percentile(values, 0.95))
     cpu = {n: 100 * (cpu_end[n] - cpu_start.get(n, 0.0)) / wall for n in cpu_end}
     drops = {n: c - drops_before.get(n, 0) for n, c in last_status.items()}
-    return LiveRun(label, rate, count, len(done), fps, latency, cpu, drops)
+    mean_ms = {n: sum(f * ms for f, ms in periods) / sum(f for f, _ in periods)
+               for n, periods in sorted(processing.items())}
+    return LiveRun(label, rate, count, len(done), fps, latency, cpu, drops, mean_ms,
+                   100 * own_cpu / wall)
 
 
 def warm_up(feeder: StereoFeeder, frames: list[StereoFrame], graph: GraphProcesses,
