@@ -60,6 +60,8 @@ def test_mirrored_census_is_the_census_flipped(window: tuple[int, int]) -> None:
     {'census_weight': 0, 'intensity_weight': 2, 'intensity_cost': 'bt'},
     {'census_weight': 2, 'intensity_weight': 1, 'intensity_cost': 'bt',
      'intensity_truncation': 12},
+    # far past the 254 clip: the kernel's int32 sum must not overflow
+    {'census_weight': 100_000, 'intensity_weight': 70_000, 'intensity_truncation': 10**6},
 ])
 @pytest.mark.parametrize('min_disparity', [0, -4, 3])
 @pytest.mark.parametrize('image_type', ['uint8', 'float32'])

@@ -154,15 +154,17 @@ def _pixel_costs(cl: np.unsignedinteger[Any], census_rm: NDArray[np.unsignedinte
 
     Every right-image row is mirrored (right[xr] = right_m[W - 1 - xr]) and xm0 = W - 1 -
     xr0, so the loop reads forward (reading backward costs a permute per vector: the
-    volume took 1.6x as long). Both terms in one loop, float32 throughout (a float64
-    constant would halve the vector width); each term is an integer below 2^24, so the
-    float sum is exact. A zero weight skips its term.
+    volume took 1.6x as long). Both terms in one loop on 32-bit lanes: the sum in int32,
+    the intensity term in float32 (a float64 constant would halve the vector width). A
+    zero weight skips its term. Weights and truncation are clamped to 255, which changes
+    no result (any term reaching 255 is clipped to 254 anyway) and keeps the int32 sum
+    far from overflow.
     """
     zero = np.float32(0.0)
     half = np.float32(0.5)
-    cap = np.float32(truncation)
-    cw = np.int32(census_weight)
-    iw = np.int32(intensity_weight)
+    cap = np.float32(min(truncation, 255))
+    cw = np.int32(min(census_weight, 255))
+    iw = np.int32(min(intensity_weight, 255))
     top = np.int32(254)
     for k in range(k_lo, k_hi + 1):
         xm = np.uint64(xm0 + k)  # unsigned: no negative-index wraparound check
