@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import qos_profile_sensor_data
 from rosbags.typesys import Stores, get_typestore
-from sensor_msgs.msg import CameraInfo
+from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
 from conftest import REPO, run_cli
@@ -80,6 +86,31 @@ def test_play_into_record_is_lossless_and_byte_exact(tmp_path: Path,
             assert got[len(sent):] == b'\0' * ((-len(sent)) % 4)
 
 
+def test_a_best_effort_subscription_receives_the_last_message(
+        tmp_path: Path, context: Context) -> None:
+    """Every node's inputs are best effort, which acknowledges nothing: the player stays
+    (--linger, 1 s by default) after its last message so that one arrives too."""
+    _bag(tmp_path / 'in')
+    node = rclpy.create_node('best_effort_listener', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    stamps: list[int] = []
+    node.create_subscription(Image, '/cam/image_raw',
+                             lambda msg: stamps.append(msg.header.stamp.nanosec),
+                             qos_profile_sensor_data)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        played = run_cli(['play', str(tmp_path / 'in'), '--topics', '/cam/image_raw',
+                          '--wait-for-subscribers', '60', '--delay', '1'],
+                         env=dict(os.environ), timeout=180)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+    assert played.returncode == 0, played.stderr
+    assert stamps == [i * 20_000_000 for i in range(N_FRAMES)]
+
+
 def test_play_unknown_topic_and_bad_rate(tmp_path: Path, ros_env: dict[str, str]) -> None:
     _bag(tmp_path / 'in')
     result = run_cli(['play', str(tmp_path / 'in'), '--topics', '/nope'], env=ros_env)
@@ -88,6 +119,9 @@ def test_play_unknown_topic_and_bad_rate(tmp_path: Path, ros_env: dict[str, str]
     result = run_cli(['play', str(tmp_path / 'in'), '--rate', '0'], env=ros_env)
     assert result.returncode == 1
     assert 'rate must be positive' in result.stderr
+    result = run_cli(['play', str(tmp_path / 'in'), '--linger', '-1'], env=ros_env)
+    assert result.returncode == 1
+    assert '--linger must be >= 0, got -1.0' in result.stderr
     assert 'Traceback' not in result.stderr
 
 

@@ -98,7 +98,8 @@ def _cmd_play(args: argparse.Namespace) -> int:
     from depth_nodes.tools.live import PlayOptions, play_bag
 
     options = PlayOptions(rate=args.rate, loop=args.loop, clock=args.clock, topics=args.topics,
-                          wait_for_subscribers=args.wait_for_subscribers, delay=args.delay)
+                          wait_for_subscribers=args.wait_for_subscribers, delay=args.delay,
+                          linger=args.linger)
     count = play_bag(args.bag, options, log=sys.stdout)
     print(f'played {count} messages')
     return 0
@@ -235,6 +236,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help='wait up to SECONDS for every topic to have a subscriber')
     play.add_argument('--delay', type=float, default=0.0, metavar='SECONDS',
                       help='then wait SECONDS more before the first message')
+    play.add_argument('--linger', type=float, default=1.0, metavar='SECONDS',
+                      help='stay SECONDS after the last message, so best-effort '
+                           'subscriptions receive it (default 1)')
     play.set_defaults(func=_cmd_play)
 
     rec = sub.add_parser('record', help='record live topics into a bag')

@@ -51,6 +51,12 @@ class PlayOptions:
         delay: Seconds to wait after that, before the first message. A publisher sees a
             subscription a moment before the subscription is ready for data, and a
             best-effort subscription loses what comes in between.
+        linger: Seconds to stay after the last message, once reliable subscriptions have
+            acknowledged everything, before the player's publishers go away. A
+            best-effort subscription (sensor-data QoS: every node's input) acknowledges
+            nothing, and a message still on its way to it when its publisher is destroyed
+            is lost: the campaign test lost its last frame that way, at a different node
+            each time.
     """
 
     rate: float = 1.0
@@ -59,13 +65,16 @@ class PlayOptions:
     topics: list[str] | None = None
     wait_for_subscribers: float = 0.0
     delay: float = 0.0
+    linger: float = 1.0
 
     def validate(self) -> None:
-        """Raises ConfigError for a non-positive rate or a negative wait or delay."""
+        """Raises ConfigError for a non-positive rate or a negative wait, delay or linger."""
         if not self.rate > 0:
             raise ConfigError(f'--rate must be positive, got {self.rate}')
         if self.delay < 0:
             raise ConfigError(f'--delay must be >= 0, got {self.delay}')
+        if self.linger < 0:
+            raise ConfigError(f'--linger must be >= 0, got {self.linger}')
         if self.wait_for_subscribers < 0:
             raise ConfigError(f'--wait-for-subscribers must be >= 0, got '
                               f'{self.wait_for_subscribers}')
@@ -108,6 +117,7 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
                 break
         for pub in waited.values():
             pub.wait_for_all_acked(Duration(seconds=5.0))
+        time.sleep(options.linger)
         return published
     finally:
         node.destroy_node()
