@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numba
@@ -80,6 +81,82 @@ def test_bad_input_is_a_counted_drop(node: Any, changes: dict[Any, Any], reason:
     assert node.drops == {reason: 1}
     node.on_frame(*_inputs())
     assert '/disparity' in node.outbox
+
+
+class _Recorder:
+    """Stands in for an rclpy publisher: notes what would have gone out (any thread)."""
+
+    def __init__(self, topic: str, log: list[tuple[str, Any]]) -> None:
+        self.topic, self.log = topic, log
+
+    def publish(self, msg: Any) -> None:
+        self.log.append((self.topic, msg))
+
+
+def test_parallel_frames_publish_every_frame_in_stamp_order(context: Context) -> None:
+    """Two frames matched at once on worker threads: each frame's three outputs equal the
+    frame-by-frame matcher's, and they go out in the order the frames came."""
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('parallel_frames', value=2),
+        Parameter('threads', value=1)])
+    log: list[tuple[str, Any]] = []
+    for out in node.outputs.values():
+        out._publisher = _Recorder(out.topic, log)  # live path (no sink), no DDS
+    shifted = np.roll(FRAME.right_rect_gt, 3, axis=1)  # a second, different frame
+    try:
+        for i in range(6):
+            msgs = _inputs({'right': shifted} if i % 2 else None)
+            for msg in msgs:
+                msg.header.stamp.sec = 100 + i
+            node.on_frame(*msgs)
+        node._workers.drain()
+        assert node.drops == {}
+        assert len(node._window.frame_times) == 6
+    finally:
+        node.destroy_node()
+    matcher = SgmMatcher(sgm_params(node.params.values))
+    expected = [matcher.match(FRAME.left_rect_gt, FRAME.right_rect_gt).disparity.copy(),
+                matcher.match(FRAME.left_rect_gt, shifted).disparity.copy()]
+    for topic in ('/disparity', '/disparity_right', '/cost_ratio'):
+        stamps = [m.header.stamp.sec for t, m in log if t == topic]
+        assert stamps == list(range(100, 106)), topic
+    disparities = [m for t, m in log if t == '/disparity']
+    for i, msg in enumerate(disparities):
+        np.testing.assert_array_equal(read_disparity(msg).disparity, expected[i % 2])
+
+
+def test_a_failing_match_in_parallel_mode_is_a_counted_drop(context: Context,
+                                                            monkeypatch: Any) -> None:
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('parallel_frames', value=2)])
+    log: list[tuple[str, Any]] = []
+    for out in node.outputs.values():
+        out._publisher = _Recorder(out.topic, log)
+    calls = 0
+    lock = threading.Lock()  # the workers call match at the same time
+    real = SgmMatcher.match
+
+    def flaky(self: SgmMatcher, *args: Any, **kwargs: Any) -> Any:
+        nonlocal calls
+        with lock:
+            calls += 1
+            fail = calls == 2
+        if fail:
+            raise MemoryError('no room for the buffers')
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(SgmMatcher, 'match', flaky)
+    try:
+        for i in range(3):
+            msgs = _inputs()
+            for msg in msgs:
+                msg.header.stamp.sec = 200 + i
+            node.on_frame(*msgs)
+        node._workers.drain()
+    finally:
+        node.destroy_node()
+    assert node.drops == {'match_failed': 1}
+    assert len([m for t, m in log if t == '/disparity']) == 2
 
 
 def test_range_wider_than_the_image(context: Context) -> None:

@@ -18,12 +18,19 @@ apply from the next frame. ``backend: opencv`` runs OpenCV's StereoSGBM for comp
 Frames without output are counted and logged with a reason: ``size_mismatch``,
 ``encoding_mismatch``, ``unsupported_encoding``, ``malformed_image``, ``uncalibrated``,
 ``bad_calibration``, ``camera_info_mismatch`` (camera_info size differs from the image),
-``range_too_wide`` (the disparity window does not fit the image), ``sync_*``.
+``range_too_wide`` (the disparity window does not fit the image), ``sync_*``, and
+``match_failed`` (the matcher raised; not expected, but never silent).
+
+``parallel_frames`` > 1 matches that many frames at once on worker threads (each with its
+own matcher and buffers) and publishes them in stamp order (``ros/workers.py``); the
+offline harness always matches frame by frame.
 """
 
 from __future__ import annotations
 
+import queue
 import sys
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -43,6 +50,7 @@ from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.workers import OrderedWorkers
 
 BACKENDS = ('census_sgm', 'opencv')
 
@@ -95,6 +103,10 @@ PARAMETERS = [
     ParamSpec('threads', 0, 'Threads of the matcher (both backends); 0: every core. In a '
               'graph of several processes on few cores, 1 wastes less CPU on waiting '
               'threads (see the README, bench --live)', 0, 1024),
+    ParamSpec('parallel_frames', 1, 'census_sgm: frames matched at once, each on its own '
+              'thread with its own buffers (129 MB at 640x480x128); 2 keeps two cores busy '
+              'without per-row synchronisation (see the README, bench --live)', 1, 16,
+              read_only=True),
     ParamSpec('correlation_window_size', 5, 'opencv backend: block size (odd)', 1, 255,
               check=_odd),
     ParamSpec('full_dp', True, 'opencv backend: MODE_HH (8 paths) instead of MODE_SGBM'),
@@ -153,7 +165,14 @@ class SgmStereoNode(DepthNode):
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
         values = self.params.values
-        self.matcher = SgmMatcher(sgm_params(values))
+        # matchers (each with its buffers) for the frames in flight, reused frame to frame
+        self._matchers: queue.SimpleQueue[SgmMatcher] = queue.SimpleQueue()
+        self._matchers.put(SgmMatcher(sgm_params(values)))
+        self._workers = None
+        if values['parallel_frames'] > 1:
+            self._workers = OrderedWorkers(values['parallel_frames'], self._frame_failed,
+                                           name='sgm_frame')
+            self.callback_is_frame_time = False
         self.pub_disparity = self.add_output(DisparityImage, 'disparity')
         self.pub_disparity_right = self.add_output(DisparityImage, 'disparity_right')
         self.pub_cost_ratio = self.add_output(Image, 'cost_ratio')
@@ -211,25 +230,68 @@ class SgmStereoNode(DepthNode):
         common = {'focal': stereo.focal, 'baseline': stereo.baseline, 'min_disparity': lo,
                   'max_disparity': lo + n - 1,
                   'valid_window': (max(0, lo), 0, min(w, w + lo + n - 1), h)}
-        if values['backend'] == 'opencv':
+        if values['backend'] == 'opencv':  # frame by frame (parallel_frames: census_sgm)
+            start = time.perf_counter()
             disparity = opencv_sgbm(np.ascontiguousarray(left, np.uint8),
                                     np.ascontiguousarray(right, np.uint8),
                                     opencv_settings(values), min_disparity=lo,
                                     disparity_range=n)
             self.pub_disparity.publish(build_disparity(disparity, header, delta_d=1 / 16,
                                                        **common))
+            if not self.callback_is_frame_time:
+                self.record_frame_time(time.perf_counter() - start)
             return
         params = sgm_params(values)
-        if params != self.matcher.params:
-            self.matcher.set_params(params)
-        result = self.matcher.match(left, right)
+        threads = values['threads']
         delta_d = SUBPIXEL_STEP if values['subpixel'] != 'none' else 1.0
-        self.pub_disparity.publish(build_disparity(result.disparity, header, delta_d=delta_d,
-                                                   **common))
         right_common = dict(common, valid_window=(max(0, -lo - n + 1), 0, min(w, w - lo), h))
-        self.pub_disparity_right.publish(build_disparity(
-            result.disparity_right, right_msg.header, delta_d=delta_d, **right_common))
-        self.pub_cost_ratio.publish(array_to_image(result.cost_ratio, '32FC1', header))
+
+        def compute() -> tuple[tuple[Any, Any, Any], float]:
+            start = time.perf_counter()
+            _use_threads(threads)  # numba's setting is per thread
+            matcher = self._take_matcher(params)
+            try:
+                result = matcher.match(left, right)
+                msgs = (build_disparity(result.disparity, header, delta_d=delta_d, **common),
+                        build_disparity(result.disparity_right, right_msg.header,
+                                        delta_d=delta_d, **right_common),
+                        array_to_image(result.cost_ratio, '32FC1', header))
+            finally:
+                self._matchers.put(matcher)
+            return msgs, time.perf_counter() - start
+
+        def publish(done: tuple[tuple[Any, Any, Any], float]) -> None:
+            (disparity, disparity_right, cost_ratio), seconds = done
+            start = time.perf_counter()
+            self.pub_disparity.publish(disparity)
+            self.pub_disparity_right.publish(disparity_right)
+            self.pub_cost_ratio.publish(cost_ratio)
+            if not self.callback_is_frame_time:
+                self.record_frame_time(seconds + time.perf_counter() - start)
+
+        if self._workers is None or self.sink is not None:  # the offline harness: in turn
+            publish(compute())
+        else:
+            self._workers.submit(compute, publish)
+
+    def _take_matcher(self, params: SgmParams) -> SgmMatcher:
+        """An idle matcher set to ``params`` (a new one when every matcher is busy)."""
+        try:
+            matcher = self._matchers.get_nowait()
+        except queue.Empty:
+            return SgmMatcher(params)
+        if params != matcher.params:
+            matcher.set_params(params)
+        return matcher
+
+    def _frame_failed(self, exc: BaseException) -> None:
+        self.drop('match_failed', f'the matcher failed on a frame: {type(exc).__name__}: {exc}')
+
+    def destroy_node(self) -> None:
+        """Finish the frames in flight, then destroy the node."""
+        if self._workers is not None:
+            self._workers.shutdown()
+        super().destroy_node()
 
 
 def _use_threads(threads: int) -> None:

@@ -20,6 +20,7 @@ on the first three):
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -89,9 +90,10 @@ class Output:
         self.count = 0
 
     def publish(self, msg: Any) -> None:
-        """Publish ``msg`` (or hand it to the harness sink)."""
-        self.count += 1
-        self._node._window.outputs[self.topic] += 1
+        """Publish ``msg`` (or hand it to the harness sink); callable from any thread."""
+        with self._node._counting:
+            self.count += 1
+            self._node._window.outputs[self.topic] += 1
         sink = self._node.sink
         if sink is None:
             self._publisher.publish(msg)
@@ -125,6 +127,12 @@ class DepthNode(Node):
         self._syncs: list[tuple[Any, Counter[str]]] = []
         self._stereo_cache: StereoInfoCache | None = None
         self._window = _Window(time.monotonic())
+        # counters may be touched by worker threads (see ros/workers.py) as well
+        self._counting = threading.Lock()
+        #: The time a callback spends when it publishes is the frame's processing time.
+        #: A node that publishes from worker threads sets this False and calls
+        #: :meth:`record_frame_time` itself.
+        self.callback_is_frame_time = True
         period = self.declare_parameter(
             'diagnostics_period', 1.0, ParameterDescriptor(
                 description=f'Seconds between two DiagnosticArray messages on '
@@ -166,11 +174,14 @@ class DepthNode(Node):
             self._window.inputs[resolved] += 1
             if check_stamps and not self._stamp_in_order(resolved, msg):
                 return
+            if not self.callback_is_frame_time:  # workers may be publishing meanwhile
+                callback(msg)
+                return
             published = sum(self._window.outputs.values())
             start = time.perf_counter()
             callback(msg)
             if sum(self._window.outputs.values()) > published:
-                self._window.frame_times.append(time.perf_counter() - start)
+                self.record_frame_time(time.perf_counter() - start)
 
         sub = self.create_subscription(
             msg_type,
@@ -181,6 +192,11 @@ class DepthNode(Node):
         )
         self.inputs.append(InputSpec(sub.topic_name, msg_type, on_message))
         return str(sub.topic_name)
+
+    def record_frame_time(self, seconds: float) -> None:
+        """Add one frame's processing time to the diagnostics (any thread)."""
+        with self._counting:
+            self._window.frame_times.append(seconds)
 
     def _stamp_in_order(self, topic: str, msg: Any) -> bool:
         header = getattr(msg, 'header', None)
@@ -310,12 +326,15 @@ class DepthNode(Node):
             reason: A short stable key, e.g. ``size_mismatch``; the counter's key.
             detail: The human-readable explanation, e.g. the sizes that disagreed.
         """
-        self.drops[reason] += 1
-        self._window.drops[reason] += 1
-        now = time.monotonic()
-        last = self._last_drop_log.get(reason)
-        if last is None or now - last >= DROP_LOG_PERIOD_S:
-            self._last_drop_log[reason] = now
+        with self._counting:
+            self.drops[reason] += 1
+            self._window.drops[reason] += 1
+            now = time.monotonic()
+            last = self._last_drop_log.get(reason)
+            log = last is None or now - last >= DROP_LOG_PERIOD_S
+            if log:
+                self._last_drop_log[reason] = now
+        if log:
             self.get_logger().warning(
                 f'dropped frame ({reason}, {self.drops[reason]} so far): {detail}'
             )
@@ -329,7 +348,10 @@ class DepthNode(Node):
         total. Level WARN when frames were dropped during the period, else OK.
         """
         now = time.monotonic()
-        window, self._window = self._window, _Window(now)
+        with self._counting:
+            window, self._window = self._window, _Window(now)
+            drops = Counter(self.drops)
+            totals = {topic: out.count for topic, out in self.outputs.items()}
         span = max(now - window.start, 1e-9)
         values = []
         for spec in self.inputs:
@@ -337,10 +359,10 @@ class DepthNode(Node):
                                 value=f'{window.inputs[spec.topic] / span:.2f}'),
                        KeyValue(key=f'input {spec.topic} total',
                                 value=str(self.received[spec.topic]))]
-        for topic, out in self.outputs.items():
+        for topic, total in totals.items():
             values += [KeyValue(key=f'output {topic} rate (Hz)',
                                 value=f'{window.outputs[topic] / span:.2f}'),
-                       KeyValue(key=f'output {topic} total', value=str(out.count))]
+                       KeyValue(key=f'output {topic} total', value=str(total))]
         times = window.frame_times
         values += [
             KeyValue(key='frames processed', value=str(len(times))),
@@ -348,10 +370,10 @@ class DepthNode(Node):
                      value=f'{1e3 * sum(times) / len(times):.2f}' if times else 'nan'),
             KeyValue(key='processing time max (ms)',
                      value=f'{1e3 * max(times):.2f}' if times else 'nan'),
-            KeyValue(key='drops total', value=str(sum(self.drops.values()))),
+            KeyValue(key='drops total', value=str(sum(drops.values()))),
         ]
         values += [KeyValue(key=f'drops {reason}', value=str(count))
-                   for reason, count in sorted(self.drops.items())]
+                   for reason, count in sorted(drops.items())]
         if window.drops:
             level = DiagnosticStatus.WARN
             message = f'dropped {sum(window.drops.values())} in {span:.1f} s: ' + ', '.join(
