@@ -19,8 +19,18 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
+from depth_nodes.ros.dds import use_large_message_profile
+
 REPO = Path(__file__).resolve().parents[1]
 TEST_DIR = Path(__file__).resolve().parent
+
+# This process publishes 640x480 images into live graphs too (the live-graph and campaign
+# tests' feeders), so it takes the same Fast DDS profile as every depth_nodes process,
+# before any rclpy.init. Without it, its 512 KiB default shared-memory segment holds one
+# 300 KB image at a time and best-effort readers lose what does not fit (README, "QoS,
+# middleware and time"); the likeliest cause of a CI run in which the composed pipeline
+# got this process's camera_info but none of its images for 120 s.
+use_large_message_profile()
 
 # Domain IDs 1..100 are valid everywhere; start at a pid-dependent offset so that two test
 # sessions running at once are unlikely to share one, and never reuse one within a session.
