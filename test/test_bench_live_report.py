@@ -18,7 +18,7 @@ def test_report_gives_load_processing_time_and_the_bench_process() -> None:
     assert '50 frames sent at 10 Hz, 37 point clouds back (13 lost), sustained 6.33 Hz' in text
     assert 'sgm_stereo 94%, point_cloud 15%; total 109% of 200%' in text
     assert 'this bench process (publisher, subscribers) 10%' in text
-    assert 'processing per frame (ms, callbacks, from /diagnostics): sgm_stereo 155.7' in text
+    assert 'processing per frame (ms, from /diagnostics): sgm_stereo 155.7' in text
     assert 'drops reported on /diagnostics: /stereo/point_cloud 3' in text
 
 

@@ -75,7 +75,7 @@ class LiveRun:
     latency_ms: dict[str, tuple[float, float]]
     cpu_percent: dict[str, float]
     node_drops: dict[str, int] = field(default_factory=dict)
-    #: Mean callback time per frame of each node (from /diagnostics), ms.
+    #: Mean processing time per frame of each node (from /diagnostics), ms.
     processing_ms: dict[str, float] = field(default_factory=dict)
     #: CPU load of this process (publishing the frames, receiving every output).
     bench_cpu_percent: float = 0.0
@@ -95,7 +95,7 @@ class LiveRun:
         if self.processing_ms:
             times = ', '.join(f'{name.rsplit("/", 1)[-1]} {ms:.1f}'
                               for name, ms in self.processing_ms.items())
-            lines.append(f'  processing per frame (ms, callbacks, from /diagnostics): {times}')
+            lines.append(f'  processing per frame (ms, from /diagnostics): {times}')
         drops = ', '.join(f'{n} {c}' for n, c in self.node_drops.items() if c) or 'none'
         lines.append(f'  drops reported on /diagnostics: {drops}')
         return '\n'.join(lines)
