@@ -5,11 +5,11 @@ of a mapped block when one is freed) with fresh pages from the kernel and return
 free; it also hands the top of the heap back once more than 128 KiB there is free. Every
 image, disparity image or point cloud a node receives or publishes is such an allocation,
 several times over (the DDS sample, the serialised buffer, the Python bytes, the numpy
-array), so each frame
-paid a page fault per 4 KiB and the kernel zeroing every page again. Measured on this
-package's machine with a raw subscription to a 9.8 MB PointCloud2 from another process: 22
-to 25 ms of CPU per message received, 6.5 ms with :func:`keep_freed_memory` (both net of
-the 4.6 ms a 1 KiB message cost: the subscriber's spinning).
+array), so each frame paid a page fault per 4 KiB and the kernel zeroing every page again.
+Measured on this package's machine with a raw subscription to a 9.8 MB PointCloud2 from
+another process: 22 to 25 ms of CPU per message received, 6.5 ms with
+:func:`keep_freed_memory` (both net of the 4.6 ms a 1 KiB message cost: the subscriber's
+spinning).
 
 The settings: allocations up to 32 MiB (glibc's largest mmap threshold on 64-bit) come from
 the heap, and up to :data:`TRIM_THRESHOLD` of free heap is kept for the next frame. The
