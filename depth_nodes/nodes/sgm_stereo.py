@@ -225,13 +225,13 @@ class SgmStereoNode(DepthNode):
             self.drop('range_too_wide', f'disparities {lo}..{lo + n - 1} do not fit an image '
                       f'{w} px wide')
             return
-        _use_threads(values['threads'])
         header = left_msg.header
         common = {'focal': stereo.focal, 'baseline': stereo.baseline, 'min_disparity': lo,
                   'max_disparity': lo + n - 1,
                   'valid_window': (max(0, lo), 0, min(w, w + lo + n - 1), h)}
         if values['backend'] == 'opencv':  # frame by frame (parallel_frames: census_sgm)
             start = time.perf_counter()
+            _use_threads(values['threads'])
             disparity = opencv_sgbm(np.ascontiguousarray(left, np.uint8),
                                     np.ascontiguousarray(right, np.uint8),
                                     opencv_settings(values), min_disparity=lo,
