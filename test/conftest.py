@@ -103,6 +103,18 @@ def tuner(node: Any, context: Context) -> Iterator[Callable[..., list[SetParamet
 STEREO_RANGES = {'stereo_vga': 128, 'stereo_qvga_color': 64, 'stereo_qvga_fisheye': 64}
 
 
+@pytest.fixture
+def thread_settings() -> Iterator[None]:
+    """Restore this thread's numba threads and OpenCV's after a test that changes them."""
+    import cv2
+    import numba
+
+    numba_threads, cv2_threads = numba.get_num_threads(), cv2.getNumThreads()
+    yield
+    numba.set_num_threads(numba_threads)
+    cv2.setNumThreads(cv2_threads)
+
+
 @pytest.fixture(scope='session')
 def stereo_reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Any]]:
     """Every bundled stereo bag replayed once through the default pipeline

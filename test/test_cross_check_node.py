@@ -8,6 +8,8 @@ import copy
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numba
 import numpy as np
 import pytest
 from rclpy.context import Context
@@ -175,6 +177,24 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert not result.successful  # read-only
         assert node.params.values['confidence_window'] == 3
         assert node.params.values['disp12_max_diff'] == 3
+
+
+@pytest.mark.usefixtures('thread_settings')
+def test_threads_parameter_applies_from_the_next_frame(node: Any, context: Context) -> None:
+    with tuner(node, context) as tune:
+        node.on_frame(*_inputs())
+        assert (numba.get_num_threads(), cv2.getNumThreads()) == (1, 1)  # the default
+        one_thread = read_disparity(node.outbox['/disparity_checked']).disparity
+        (result,) = tune(threads=0)
+        assert result.successful, result.reason
+        node.on_frame(*_inputs())
+        assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
+        assert cv2.getNumThreads() == cv2.getNumberOfCPUs()
+        every_core = read_disparity(node.outbox['/disparity_checked']).disparity
+        np.testing.assert_array_equal(every_core, one_thread)
+        (result,) = tune(threads=-1)
+        assert not result.successful
+        assert node.params.values['threads'] == 0
 
 
 def test_bad_start_up_value_is_an_error(context: Context) -> None:

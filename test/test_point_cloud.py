@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import cv2
+import numba
 import numpy as np
 import pytest
 from rclpy.context import Context
@@ -123,6 +125,19 @@ def test_gt_disparity_gives_gt_points_and_colours(node: Any) -> None:
                                                                   'left_optical')
     np.testing.assert_array_equal(np.frombuffer(bytes(depth.data), '<f4').reshape(H, W),
                                   points['z'])
+
+
+@pytest.mark.usefixtures('thread_settings')
+def test_threads_parameter_is_applied_to_the_frame(context: Context) -> None:
+    node = _make(context, threads=2)
+    try:
+        numba.set_num_threads(1)
+        node.on_frame(**_inputs())
+        assert numba.get_num_threads() == min(2, numba.config.NUMBA_NUM_THREADS)
+        assert cv2.getNumThreads() == 2
+        assert set(node.outbox) == {'/points2', '/depth'}
+    finally:
+        node.destroy_node()
 
 
 def test_rosbags_deserialiser_reads_the_same_cloud(node: Any) -> None:

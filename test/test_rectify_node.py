@@ -8,11 +8,13 @@ import time
 from typing import Any
 
 import cv2
+import numba
 import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 
 from conftest import tuner
@@ -123,6 +125,22 @@ def test_interpolation_changes_through_the_parameter_service(node: Any,
         (read_only,) = tune(queue_size=9)
         assert not read_only.successful
         assert node.get_parameter('queue_size').value == 5
+
+
+@pytest.mark.usefixtures('thread_settings')
+def test_threads_parameter_is_applied_to_the_frame(context: Context) -> None:
+    node = RectifyNode(context=context, parameter_overrides=[Parameter('threads', value=2)])
+    node.outbox = []
+    node.sink = lambda topic, msg: node.outbox.append((topic, msg))
+    try:
+        numba.set_num_threads(1)
+        node.on_frame(*_pair())
+        assert numba.get_num_threads() == min(2, numba.config.NUMBA_NUM_THREADS)
+        assert cv2.getNumThreads() == 2
+        expected = Rectifier().rectify(FRAME.left_raw, FRAME.left_camera)
+        np.testing.assert_array_equal(image_to_array(node.outbox[0][1]), expected)
+    finally:
+        node.destroy_node()
 
 
 def test_bad_startup_parameter_is_a_clear_error(ros_env: dict[str, str]) -> None:

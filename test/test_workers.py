@@ -5,9 +5,11 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+import cv2
+import numba
 import pytest
 
-from depth_nodes.ros.workers import OrderedWorkers
+from depth_nodes.ros.workers import OrderedWorkers, use_threads
 
 #: Generous bound on a wait for an event another thread sets at once (not a timing
 #: assertion: a test only fails on it if the event never comes).
@@ -81,3 +83,20 @@ def test_a_failing_frame_is_reported_in_its_turn_and_the_rest_publish() -> None:
 def test_count_must_be_positive() -> None:
     with pytest.raises(ValueError, match='at least 1'):
         OrderedWorkers(0, print)
+
+
+@pytest.mark.usefixtures('thread_settings')
+def test_use_threads_sets_numba_for_the_calling_thread_and_opencv_for_the_process() -> None:
+    cores = numba.config.NUMBA_NUM_THREADS
+    use_threads(1)
+    assert (numba.get_num_threads(), cv2.getNumThreads()) == (1, 1)
+    seen: list[int] = []
+    other = threading.Thread(target=lambda: seen.append(numba.get_num_threads()))
+    other.start()
+    other.join()
+    assert seen == [cores]  # numba's setting belongs to the thread that made it
+    use_threads(0)
+    assert (numba.get_num_threads(), cv2.getNumThreads()) == (cores, cv2.getNumberOfCPUs())
+    use_threads(cores + 5)  # more than numba started with: as many as it has
+    assert numba.get_num_threads() == cores
+    assert cv2.getNumThreads() == cores + 5

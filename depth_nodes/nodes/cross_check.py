@@ -40,6 +40,7 @@ from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.workers import use_threads
 
 
 def _odd(value: int) -> str | None:
@@ -75,6 +76,9 @@ PARAMETERS = [
     ParamSpec('confidence_window', 9, 'Odd side of the box the cost measure is pooled '
               'over (1: no pooling)', 1, 31, check=_odd),
     ParamSpec('filled_confidence', 0.1, 'Confidence factor of filled pixels', 0.0, 1.0),
+    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0: every core. '
+              'A frame takes a few ms here; under load a second thread mostly spins '
+              'waiting for the first (see the README, bench --live)', 0, 1024),
 ]
 
 
@@ -111,6 +115,7 @@ class CrossCheckNode(DepthNode):
                  cost_msg: Image) -> None:
         """Check one synchronised set and publish ``disparity_checked`` and ``confidence``."""
         values: Mapping[str, Any] = self.params.values
+        use_threads(values['threads'])
         left = _disparity(disparity_msg, 'disparity', self)
         if left is None:
             return

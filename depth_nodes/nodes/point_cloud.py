@@ -45,6 +45,7 @@ from depth_nodes.ros.image import array_to_image, to_rgb8
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 from depth_nodes.ros.pointcloud import build_pointcloud
+from depth_nodes.ros.workers import use_threads
 
 #: Colour encodings the cloud's rgb can be taken from.
 COLOR_ENCODINGS = ('mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8')
@@ -94,6 +95,9 @@ PARAMETERS = [
               'confidence (needs use_confidence), depth_std', check=_check_extra_fields),
     ParamSpec('disparity_std', 0.25, 'Disparity standard deviation, px, for depth_std',
               0.0, 100.0),
+    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0: every core. '
+              'A frame takes a few ms here; under load a second thread mostly spins '
+              'waiting for the first (see the README, bench --live)', 0, 1024),
 ]
 
 
@@ -144,6 +148,7 @@ class PointCloudNode(DepthNode):
                  confidence: Image | None = None) -> None:
         """Turn one synchronised set into ``points2`` and ``depth``."""
         values = self.params.values
+        use_threads(values['threads'])
         if disparity_msg.image.encoding != '32FC1':
             self.drop('disparity_encoding', f'DisparityImage image encoding must be 32FC1, '
                       f'got {disparity_msg.image.encoding!r}')

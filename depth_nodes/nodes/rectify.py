@@ -30,6 +30,7 @@ from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.workers import use_threads
 
 
 def _check_interpolation(value: Any) -> str | None:
@@ -47,6 +48,9 @@ PARAMETERS = [
               'Interpolation: ' + ', '.join(f'{n} ({f})' for n, f in INTERPOLATIONS.items())
               + '; a name or image_proc\'s integer code',
               dynamic_typing=True, check=_check_interpolation),
+    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0: every core. '
+              'A frame takes a few ms here; under load a second thread mostly spins '
+              'waiting for the first (see the README, bench --live)', 0, 1024),
 ]
 
 
@@ -80,6 +84,7 @@ class RectifyNode(DepthNode):
     def on_frame(self, image_msg: Image, info_msg: CameraInfo) -> None:
         """Rectify one raw image with the CameraInfo of the same stamp."""
         interpolation = self.params.values['interpolation']
+        use_threads(self.params.values['threads'])
         if not np.any(np.asarray(info_msg.k)):
             self.drop('uncalibrated', 'camera_info K is all zero: the camera is not '
                       'calibrated, nothing to rectify with')

@@ -35,7 +35,6 @@ from collections.abc import Mapping
 from typing import Any
 
 import cv2
-import numba
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
@@ -50,7 +49,7 @@ from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
-from depth_nodes.ros.workers import OrderedWorkers
+from depth_nodes.ros.workers import OrderedWorkers, use_threads
 
 BACKENDS = ('census_sgm', 'opencv')
 
@@ -231,7 +230,7 @@ class SgmStereoNode(DepthNode):
                   'valid_window': (max(0, lo), 0, min(w, w + lo + n - 1), h)}
         if values['backend'] == 'opencv':  # frame by frame (parallel_frames: census_sgm)
             start = time.perf_counter()
-            _use_threads(values['threads'])
+            use_threads(values['threads'])
             disparity = opencv_sgbm(np.ascontiguousarray(left, np.uint8),
                                     np.ascontiguousarray(right, np.uint8),
                                     opencv_settings(values), min_disparity=lo,
@@ -248,7 +247,7 @@ class SgmStereoNode(DepthNode):
 
         def compute() -> tuple[tuple[Any, Any, Any], float]:
             start = time.perf_counter()
-            _use_threads(threads)  # numba's setting is per thread
+            use_threads(threads)  # numba's setting is per thread
             matcher = self._take_matcher(params)
             try:
                 result = matcher.match(left, right)
@@ -292,13 +291,6 @@ class SgmStereoNode(DepthNode):
         if self._workers is not None:
             self._workers.shutdown()
         super().destroy_node()
-
-
-def _use_threads(threads: int) -> None:
-    """Run this thread's numba kernels and OpenCV with ``threads`` (0: every core)."""
-    cores = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
-    numba.set_num_threads(min(threads, cores) if threads else cores)
-    cv2.setNumThreads(threads if threads else -1)
 
 
 def main(args: list[str] | None = None) -> None:

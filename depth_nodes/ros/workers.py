@@ -16,6 +16,9 @@ from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from typing import Any, TypeVar
 
+import cv2
+import numba
+
 T = TypeVar('T')
 
 
@@ -87,3 +90,19 @@ class OrderedWorkers:
         """Finish the frames in flight and stop the worker threads."""
         self.drain()
         self._pool.shutdown(wait=True)
+
+
+def use_threads(threads: int) -> None:
+    """Run the calling thread's numba kernels and OpenCV calls on ``threads`` threads (0:
+    every core).
+
+    numba's setting belongs to the calling thread, so a node applies it in the thread that
+    runs its kernels, once per frame. OpenCV's is process-wide (nodes composed into one
+    process share it) and is only changed when it differs, since changing it rebuilds
+    OpenCV's thread pool.
+    """
+    cores = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+    numba.set_num_threads(min(threads, cores) if threads else cores)
+    wanted = threads if threads else cv2.getNumberOfCPUs()
+    if cv2.getNumThreads() != wanted:
+        cv2.setNumThreads(wanted)
