@@ -70,7 +70,8 @@ def test_cost_volume_matches_reference(settings: dict[str, object], min_disparit
                                        image_type: str, window: tuple[int, int],
                                        disparities: int) -> None:
     """(5, 7) has 34 neighbours: a 64-bit census; (5, 5) a 32-bit one, and 35 disparities
-    run the kernel's vector loop body as well as its remainder."""
+    run the kernel's vector loop body as well as its remainder. uint8 pairs with the 32-bit
+    census take the 16-bit kernel, every other case the float one."""
     left, right = _pair()
     if image_type == 'float32':  # fractional intensities
         left, right = left + np.float32(0.25), right * np.float32(0.97)
@@ -78,6 +79,26 @@ def test_cost_volume_matches_reference(settings: dict[str, object], min_disparit
               'census_window': window, **settings}
     np.testing.assert_array_equal(cost_volume(left, right, **kwargs),
                                   cost_volume_reference(left, right, **kwargs))
+
+
+@pytest.mark.parametrize('settings', [
+    {'census_weight': 1, 'intensity_weight': 1, 'intensity_truncation': 255},
+    {'census_weight': 255, 'intensity_weight': 255, 'intensity_truncation': 10**6},
+    {'census_weight': 0, 'intensity_weight': 300, 'intensity_cost': 'ad'},
+])
+def test_16_bit_kernel_at_the_extremes_of_uint8(settings: dict[str, object]) -> None:
+    """Black and white stripes: intensity differences of 255 (510 doubled), the largest
+    the 16-bit kernel of uint8 pairs sees; it must equal the float kernel and the
+    reference."""
+    rng = np.random.default_rng(3)
+    left = (rng.integers(0, 2, (9, 40)) * 255).astype(np.uint8)
+    right = np.roll(left, -3, axis=1)
+    kwargs = {'min_disparity': 0, 'disparity_range': 36, 'census_window': (5, 5), **settings}
+    expected = cost_volume_reference(left, right, **kwargs)
+    np.testing.assert_array_equal(cost_volume(left, right, **kwargs), expected)
+    np.testing.assert_array_equal(
+        cost_volume(left.astype(np.float32), right.astype(np.float32), **kwargs), expected)
+    assert expected[expected < 255].max() == 254  # the clip was reached
 
 
 @pytest.mark.parametrize(('paths', 'scale', 'intensity'), [

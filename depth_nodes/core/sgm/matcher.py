@@ -210,7 +210,7 @@ class SgmMatcher:
         b = self._buffers(h, w)
         left_f = np.ascontiguousarray(left, dtype=np.float32)
         cost = cost_volume(
-            left_f, right, min_disparity=p.min_disparity, disparity_range=p.disparity_range,
+            left, right, min_disparity=p.min_disparity, disparity_range=p.disparity_range,
             census_window=(p.census_height, p.census_width), census_weight=p.census_weight,
             intensity_weight=p.intensity_weight, intensity_cost=p.intensity_cost,
             intensity_truncation=p.intensity_truncation, out=b['cost'],
