@@ -3,7 +3,8 @@ benchmark, timed by hand, never by a test)."""
 
 from __future__ import annotations
 
-from depth_nodes.tools.bench_live import LiveBench, LiveRun
+from depth_nodes.ros.graph import GraphConfig, NodeSpec
+from depth_nodes.tools.bench_live import LiveBench, LiveRun, opencv_graph, opencv_mode
 
 
 def _run(received: int, fps: float) -> LiveRun:
@@ -26,3 +27,18 @@ def test_target_is_met_only_with_every_frame_back_at_the_rate() -> None:
     assert 'target 10 Hz with nothing lost: NOT met' in LiveBench(_run(37, 6.33), None).format()
     assert 'target 10 Hz with nothing lost: NOT met' in LiveBench(_run(49, 9.9), None).format()
     assert 'target 10 Hz with nothing lost: met' in LiveBench(_run(50, 9.9), None).format()
+
+
+def test_header_names_the_paths_and_opencv_runs_the_matching_mode() -> None:
+    assert '128 disparities, 5 paths,' in LiveBench(_run(50, 9.9), None, paths=5).format()
+    assert '128 disparities, 8 paths,' in LiveBench(_run(50, 9.9), None).format()
+    assert [opencv_mode(p) for p in (4, 5, 8, 16)] == ['MODE_SGBM', 'MODE_SGBM', 'MODE_HH',
+                                                        'MODE_HH']
+    config = GraphConfig('stereo', [
+        NodeSpec('sgm_stereo', 'sgm_stereo', '/stereo', {'paths': 5}, {}),
+        NodeSpec('cross_check', 'cross_check', '/stereo', {}, {})])
+    for paths, full_dp in ((5, False), (8, True)):
+        graph = opencv_graph(config, paths)
+        assert [n.plugin for n in graph.nodes] == ['sgm_stereo']  # no cross-check
+        assert graph.nodes[0].parameters == {'paths': 5, 'backend': 'opencv',
+                                             'full_dp': full_dp}

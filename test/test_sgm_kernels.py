@@ -102,7 +102,8 @@ def test_16_bit_kernel_at_the_extremes_of_uint8(settings: dict[str, object]) -> 
 
 
 @pytest.mark.parametrize(('paths', 'scale', 'intensity'), [
-    (4, 0.0, 0), (8, 0.0, 0), (8, 12.0, 0), (8, 20.0, 1), (16, 0.0, 0), (16, 7.5, 2)])
+    (4, 0.0, 0), (5, 0.0, 0), (5, 20.0, 1), (8, 0.0, 0), (8, 12.0, 0), (8, 20.0, 1),
+    (16, 0.0, 0), (16, 7.5, 2)])
 def test_aggregation_matches_reference(paths: int, scale: float, intensity: int) -> None:
     left, right = _pair(h=17, w=29)
     params = SgmParams(min_disparity=-2, disparity_range=9, census_width=5, census_height=5,
@@ -118,11 +119,13 @@ def test_aggregation_matches_reference(paths: int, scale: float, intensity: int)
 
 @pytest.mark.parametrize('subpixel', ['none', 'parabola', 'equiangular'])
 @pytest.mark.parametrize(('min_disparity', 'uniqueness'), [(0, 0), (-3, 15), (2, 5)])
-def test_selection_matches_reference(subpixel: str, min_disparity: int, uniqueness: int) -> None:
+@pytest.mark.parametrize('paths', [8, 5])
+def test_selection_matches_reference(subpixel: str, min_disparity: int, uniqueness: int,
+                                     paths: int) -> None:
     left, right = _pair(h=19, w=31, seed=3)
     params = SgmParams(min_disparity=min_disparity, disparity_range=10, census_width=5,
                        census_height=5, P1=4, P2=40, uniqueness_ratio=uniqueness,
-                       subpixel=subpixel, median_filter=False)
+                       subpixel=subpixel, median_filter=False, paths=paths)
     matcher = SgmMatcher(params)
     result = matcher.match(left, right, keep_total=True)
     want_left, want_right, want_ratio = select_reference(

@@ -200,7 +200,7 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert 'P2 (900.0) must be >= P1 (1000.0)' in rejected.reason
         (rejected,) = tune(paths=6)
         assert not rejected.successful
-        assert 'must be 4, 8 or 16' in rejected.reason
+        assert 'must be 4, 5, 8 or 16' in rejected.reason
         (accepted,) = tune(disparity_range=50)  # any range for census_sgm
         assert accepted.successful
         (rejected,) = tune(backend='opencv')
@@ -220,6 +220,15 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
         np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
                                       one_thread)
+        (result,) = tune(paths=5)  # one pass: the matcher's single-pass mode from now on
+        assert result.successful
+        node.on_frame(*_inputs())
+        single = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                                 FRAME.right_rect_gt)
+        assert single.disparity.shape == one_thread.shape
+        np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
+                                      single.disparity)
+        assert not np.array_equal(single.disparity, one_thread, equal_nan=True)
 
 
 def test_opencv_backend_matches_stereosgbm(context: Context) -> None:

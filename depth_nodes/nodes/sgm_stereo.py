@@ -65,7 +65,7 @@ def _odd(value: int) -> str | None:
 
 
 def _paths(value: int) -> str | None:
-    return None if value in VERTICAL_DIRECTIONS else 'must be 4, 8 or 16'
+    return None if value in VERTICAL_DIRECTIONS else 'must be 4, 5, 8 or 16'
 
 
 PARAMETERS = [
@@ -86,7 +86,7 @@ PARAMETERS = [
     ParamSpec('P2', 220.0, 'Penalty of a larger disparity change (>= P1)', 0.0, 7936.0),
     ParamSpec('uniqueness_ratio', 20.0, 'Percent by which the best cost must beat the best '
               'non-neighbouring disparity', 0.0, 99.0),
-    ParamSpec('paths', 8, 'Aggregation paths: 4, 8 or 16', 4, 16, check=_paths),
+    ParamSpec('paths', 8, 'Aggregation paths: 4, 5 (one pass), 8 or 16', 4, 16, check=_paths),
     ParamSpec('census_width', 5, 'Census window width (odd)', 3, 9, check=_odd),
     ParamSpec('census_height', 5, 'Census window height (odd)', 3, 9, check=_odd),
     ParamSpec('census_weight', 1, 'Weight of the census Hamming cost', 0, 8),

@@ -109,11 +109,12 @@ class LiveBench:
     opencv: LiveRun | None
     target_hz: float = 10.0
     threads: int = 0
+    paths: int = 8
 
     def format(self) -> str:
         threads = f'{self.threads} thread(s)' if self.threads else 'every core'
-        lines = ['live: 640x480, 128 disparities, 8 paths, one process per node over DDS '
-                 f'(Fast DDS, localhost), SGM node on {threads}', self.ours.format()]
+        lines = [f'live: 640x480, 128 disparities, {self.paths} paths, one process per node '
+                 f'over DDS (Fast DDS, localhost), SGM node on {threads}', self.ours.format()]
         met = self.ours.fps >= 0.95 * self.target_hz and self.ours.received == self.ours.sent
         lines.append(f'  target {self.target_hz:g} Hz with nothing lost: '
                      f'{"met" if met else "NOT met"}')
@@ -124,14 +125,20 @@ class LiveBench:
         return '\n'.join(lines)
 
 
-def opencv_graph(config: GraphConfig) -> GraphConfig:
-    """``config`` as stereo_image_proc users run it: StereoSGBM MODE_HH in the SGM node,
-    no cross-check, the point cloud straight from the disparity."""
+def opencv_mode(paths: int) -> str:
+    """The StereoSGBM mode with the directions closest to ``paths``: MODE_SGBM (5, one
+    pass; stereo_image_proc's default) for 4 and 5 paths, MODE_HH (8) otherwise."""
+    return 'MODE_SGBM' if paths <= 5 else 'MODE_HH'
+
+
+def opencv_graph(config: GraphConfig, paths: int = 8) -> GraphConfig:
+    """``config`` as stereo_image_proc users run it: StereoSGBM in the SGM node (the mode
+    of :func:`opencv_mode`), no cross-check, the point cloud straight from the disparity."""
     graph = copy.deepcopy(config)
     graph.nodes = [n for n in graph.nodes if n.plugin != 'cross_check']
     for node in graph.nodes:
         if node.plugin == 'sgm_stereo':
-            node.parameters.update(backend='opencv', full_dp=True)
+            node.parameters.update(backend='opencv', full_dp=opencv_mode(paths) == 'MODE_HH')
         if node.plugin == 'point_cloud':
             node.parameters['use_confidence'] = False
             node.remappings.pop('disparity', None)
@@ -146,7 +153,8 @@ def _percentile(values: list[float], q: float) -> float:
 
 def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame], *,
              rate: float, count: int, warmup: int, label: str, workdir: Path,
-             env: dict[str, str], threads: int | None = None) -> LiveRun:
+             env: dict[str, str], threads: int | None = None,
+             paths: int | None = None) -> LiveRun:
     """Run ``config`` as processes, feed ``warmup`` frames one at a time, then ``count``
     frames at ``rate`` Hz, and measure."""
     watch = sorted({t for _, _, outs in stages for t in outs})
@@ -173,8 +181,11 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 50)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    graph = GraphProcesses(config, workdir, env=env, overrides=(
-        {} if threads is None else {'sgm_stereo': {'threads': threads}}))
+    sgm: dict[str, int] = {} if threads is None else {'threads': threads}
+    if paths is not None:
+        sgm['paths'] = paths
+    graph = GraphProcesses(config, workdir, env=env, overrides={'sgm_stereo': sgm} if sgm
+                           else {})
     try:
         graph.start()
         _wait(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
@@ -279,9 +290,11 @@ def _wait(done: Callable[[], bool], timeout: float, graph: GraphProcesses,
 
 def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
                threads: int | None = None, opencv: bool = True,
-               bag: str | Path | None = None) -> LiveBench:
+               bag: str | Path | None = None, paths: int | None = None) -> LiveBench:
     """Measure the stereo pipeline (and the OpenCV graph) as separate processes, the SGM
-    node of both with ``threads`` threads (0: every core; None: as the config says).
+    node of both with ``threads`` threads (0: every core; None: as the config says), ours
+    with ``paths`` aggregation paths (None: as the config says) and OpenCV in the mode of
+    :func:`opencv_mode`.
 
     Runs in its own ROS domain (derived from the process id, discovery on localhost) so it
     neither disturbs nor hears another graph.
@@ -296,16 +309,18 @@ def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
     if not frames:
         raise ConfigError(f'bench --live: no complete stereo frame under {NS} in {bag}')
     config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
+    sgm = next(n for n in config.nodes if n.plugin == 'sgm_stereo')
+    used_paths = int(sgm.parameters.get('paths', 8)) if paths is None else paths
     with tempfile.TemporaryDirectory(prefix='depth_nodes_live_') as tmp:
         ours = run_live(config, OURS_STAGES, frames, rate=rate, count=count, warmup=warmup,
                         label='depth_nodes graph (census SGM + cross-check)',
-                        workdir=Path(tmp) / 'ours', env=env, threads=threads)
+                        workdir=Path(tmp) / 'ours', env=env, threads=threads, paths=paths)
         theirs = None
         if opencv:
-            theirs = run_live(opencv_graph(config), OPENCV_STAGES, frames, rate=rate,
-                              count=count, warmup=warmup,
-                              label='OpenCV graph (StereoSGBM MODE_HH, no cross-check)',
+            mode = opencv_mode(used_paths)
+            theirs = run_live(opencv_graph(config, used_paths), OPENCV_STAGES, frames,
+                              rate=rate, count=count, warmup=warmup,
+                              label=f'OpenCV graph (StereoSGBM {mode}, no cross-check)',
                               workdir=Path(tmp) / 'opencv', env=env, threads=threads)
-    sgm = next(n for n in config.nodes if n.plugin == 'sgm_stereo')
     used = sgm.parameters.get('threads', 0) if threads is None else threads
-    return LiveBench(ours, theirs, target_hz=rate, threads=used)
+    return LiveBench(ours, theirs, target_hz=rate, threads=used, paths=used_paths)

@@ -153,7 +153,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from depth_nodes.tools.bench_live import bench_live
 
         print(bench_live(rate=args.rate, count=args.frames or 50, threads=args.threads,
-                         opencv=not args.no_opencv, bag=args.bag).format())
+                         opencv=not args.no_opencv, bag=args.bag, paths=args.paths).format())
         return 0
     if args.stage is None:
         raise ConfigError('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
@@ -173,7 +173,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                             interpolation=args.interpolation).format())
     elif args.stage == 'sgm':
         print(bench_sgm(repeats=args.frames or 10, disparities=args.disparities,
-                        paths=args.paths).format())
+                        paths=args.paths or 8).format())
     elif args.stage == 'cross_check':
         from depth_nodes.tools.bench_cross_check import bench_cross_check
 
@@ -298,7 +298,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help='OpenCV and numba threads (default 2); --live: of the SGM node '
                        '(0 = every core; default: as config/stereo_pipeline.yaml says)')
     bench.add_argument('--disparities', type=int, default=128, help='sgm: disparity range')
-    bench.add_argument('--paths', type=int, default=8, help='sgm: 4, 8 or 16')
+    bench.add_argument('--paths', type=int, choices=(4, 5, 8, 16),
+                       help='sgm: aggregation paths (default 8); --live: of the SGM node '
+                       '(default: as config/stereo_pipeline.yaml says), OpenCV then in '
+                       'MODE_SGBM for 4 and 5, MODE_HH for 8 and 16')
     bench.add_argument('--interpolation', default='linear',
                        help='rectify: nearest, linear, cubic, area or lanczos4')
     bench.set_defaults(func=_cmd_bench)

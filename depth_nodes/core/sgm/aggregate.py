@@ -34,12 +34,18 @@ U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
 
 #: Path directions (dx, dy) swept top to bottom; the bottom-to-top sweep mirrors them.
-#: 4 paths = 2 horizontal + 2 of these, 8 = 2 + 6, 16 = 2 + 14.
+#: 4 paths = 2 horizontal + 2 of these, 8 = 2 + 6, 16 = 2 + 14. 5 paths = 2 horizontal + these
+#: 3 from above, not mirrored (:data:`SINGLE_PASS`).
 VERTICAL_DIRECTIONS = {
     4: ((0, 1),),
+    5: ((0, 1), (1, 1), (-1, 1)),
     8: ((0, 1), (1, 1), (-1, 1)),
     16: ((0, 1), (1, 1), (-1, 1), (2, 1), (-2, 1), (1, 2), (-1, 2)),
 }
+#: Path counts aggregated in one top-to-bottom pass: no sum of the downward paths is
+#: stored, so the (H, W, D) uint16 volume and the second pass over the cost volume are saved
+#: (the directions of OpenCV's MODE_SGBM; 8 paths are its MODE_HH).
+SINGLE_PASS = frozenset({5})
 
 
 def p2_table(p1: int, p2: int, scale: float, levels: int = 65536) -> NDArray[np.int64]:
@@ -225,8 +231,10 @@ def aggregate_path_reference(cost: U8, image: NDArray[np.float32], dx: int, dy: 
 
 
 def all_directions(paths: int) -> list[tuple[int, int]]:
-    """Every (dx, dy) direction of a 4, 8 or 16 path SGM (horizontal ones included)."""
+    """Every (dx, dy) direction of a 4, 5, 8 or 16 path SGM (horizontal ones included)."""
     down = VERTICAL_DIRECTIONS[paths]
+    if paths in SINGLE_PASS:
+        return [(1, 0), (-1, 0), *down]
     return [(1, 0), (-1, 0), *down, *((-dx, -dy) for dx, dy in down)]
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.sgm.aggregate import (
+    SINGLE_PASS,
     VERTICAL_DIRECTIONS,
     new_line_buffers,
     p2_table,
@@ -49,7 +50,9 @@ class SgmParams:
         P2: Penalty of a larger change (>= P1).
         p2_adaptive_scale: Grey-level scale of the image-adaptive P2
             (P2' = max(P1, P2 / (1 + |dI| / scale))); 0 keeps P2 constant.
-        paths: 4, 8 or 16 aggregation paths.
+        paths: 4, 5, 8 or 16 aggregation paths. 5 (both horizontals and the three from
+            above, like OpenCV's MODE_SGBM) run in one pass without the (H, W, D) uint16
+            sum of 8 and 16 (MODE_HH's directions and more).
         uniqueness_ratio: Percent by which the winner must beat the best non-neighbouring
             disparity (OpenCV's rule); 0 disables the check.
         subpixel: ``'parabola'``, ``'equiangular'`` or ``'none'``.
@@ -106,7 +109,7 @@ class SgmParams:
         if self.P2 < self.P1:
             raise bad('P2', f'must be >= P1 ({self.P1})')
         if self.paths not in VERTICAL_DIRECTIONS:
-            raise bad('paths', 'must be 4, 8 or 16')
+            raise bad('paths', 'must be 4, 5, 8 or 16')
         limit = 65535 // self.paths - OUT_OF_RANGE_COST
         if limit < self.P2:
             raise bad('P2', f'must be <= {limit} with {self.paths} paths, so that the 16-bit '
@@ -171,7 +174,9 @@ class SgmMatcher:
             self._buf = {
                 'census': (np.empty((h, w), census), np.empty((h, w), census)),
                 'cost': np.empty((h, w, n), np.uint8),
-                'partial': np.empty((h, w, n), np.uint16),
+                # the sum of the downward paths (none in one pass; see match's keep_total)
+                'partial': np.empty((0, 0, 0) if p.paths in SINGLE_PASS else (h, w, n),
+                                    np.uint16),
                 'rings': rings, 'mbuf': mbuf,
                 'dxs': np.array([d[0] for d in dirs], np.int64),
                 'dys': np.array([d[1] for d in dirs], np.int64),
@@ -217,15 +222,19 @@ class SgmMatcher:
             census_buffers=b['census'])
         lb0, lb1, lb2 = b['rings']
         chunks = CHUNKS_PER_THREAD * numba.get_num_threads()
-        sweep_down(cost, left_f, b['dxs'], b['dys'], int(p.P1), int(p.P2), self._table,
-                   lb0, lb1, lb2, b['mbuf'], b['partial'], chunks)
+        single_pass = p.paths in SINGLE_PASS
+        if keep_total and b['partial'].shape != cost.shape:  # tests: room for the total
+            b['partial'] = np.empty(cost.shape, np.uint16)
+        if not single_pass:
+            sweep_down(cost, left_f, b['dxs'], b['dys'], int(p.P1), int(p.P2), self._table,
+                       lb0, lb1, lb2, b['mbuf'], b['partial'], chunks)
         total, left_to_right, right_to_left = b['rows']
         upward_horizontal_select(
             cost, left_f, b['partial'], b['dxs'], b['dys'], int(p.P1), int(p.P2),
             self._table, lb0, lb1, lb2, b['mbuf'], int(p.min_disparity),
             float(p.uniqueness_ratio), SUBPIXEL_MODES[p.subpixel], total, left_to_right,
             right_to_left, b['keys'], b['disparity'], b['disparity_right'], b['ratio'],
-            keep_total, chunks)
+            keep_total, chunks, single_pass)
         if p.median_filter:
             _median3(b['disparity'], p.min_disparity)
         return SgmResult(b['disparity'], b['disparity_right'], b['ratio'])

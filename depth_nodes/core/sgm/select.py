@@ -195,7 +195,8 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
                              mbuf: U16, min_disparity: int, uniqueness: float, subpixel: int,
                              total: U16, left_to_right: U16, right_to_left: U16,
                              keys: NDArray[np.uint32], disparity: F32, disparity_right: F32,
-                             ratio: F32, store_total: bool, chunks: int) -> None:
+                             ratio: F32, store_total: bool, chunks: int,
+                             single_pass: bool) -> None:
     """The rest of SGM, one row at a time from the bottom up, without a second volume pass.
 
     For each row: (1) the upward paths (the downward ones mirrored) are added to the
@@ -204,11 +205,16 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
     while each chunk of x offers its totals to the right-view pixels; (4) the right view
     is merged and refined. The full volume is thus read once here and never rewritten.
 
+    With ``single_pass`` the rows go from the top down instead, the directions ``(dxs,
+    dys)`` are used as they are (not mirrored) and there is no ``partial``: the whole
+    SGM of :data:`~depth_nodes.core.sgm.aggregate.SINGLE_PASS` path counts in one pass.
+
     Args:
         cost: (H, W, D) uint8 cost volume.
         image: (H, W) float32 left image (adaptive P2).
         partial: (H, W, D) uint16 sum of the downward paths (``aggregate.sweep_down``);
-            overwritten with the full sum when ``store_total`` (tests).
+            overwritten with the full sum when ``store_total`` (tests). Not read with
+            ``single_pass`` (any shape unless ``store_total``).
         dxs, dys: The downward directions, as given to ``sweep_down``.
         p1, p2, p2_table: Penalties, as in ``aggregate.sweep_down``.
         lb0, lb1, lb2, mbuf: Ring buffers, as in ``aggregate.sweep_down``.
@@ -224,36 +230,40 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
         ratio: (H, W) float32 out: best / second-best aggregated cost of the left winner.
         store_total: Write the full sum back into ``partial``.
         chunks: Pieces each row is split into for the threads.
+        single_pass: Top down, the directions unmirrored, no ``partial`` (see above).
     """
     h, w, n = cost.shape
     ndir = dxs.shape[0]
     chunks = max(1, min(w, chunks, keys.shape[0]))
+    back = -1 if single_pass else 1  # the previous pixel of (dx, dy) is (x, y) + back (dx, dy)
     for i in range(h):
-        y = h - 1 - i
+        y = i if single_pass else h - 1 - i
         ring = i % 3
         cur_ring = _ring(lb0, lb1, lb2, ring)
         for c in prange(chunks):  # (1) upward paths + downward sum
             for x in range(c * w // chunks, (c + 1) * w // chunks):
                 out = total[x]
-                part = partial[y, x]
-                for d in range(n):
-                    out[d] = part[d]
+                if not single_pass:
+                    part = partial[y, x]
+                    for d in range(n):
+                        out[d] = part[d]
                 for j in range(ndir):
                     step = dys[j]
-                    xp = x + dxs[j]
+                    xp = x + back * dxs[j]
                     cur = cur_ring[j, x]
                     if i - step < 0 or xp < 0 or xp >= w:
                         best = path_start(cost[y, x], cur)
                     else:
                         pring = (i - step) % 3
-                        p2e = table_p2(p2, p2_table, image[y, x], image[y + step, xp])
+                        p2e = table_p2(p2, p2_table, image[y, x], image[y + back * step, xp])
                         best = path_step(cost[y, x], _ring(lb0, lb1, lb2, pring)[j, xp],
                                          int(mbuf[j, pring, xp]), p1, p2e, cur)
                     mbuf[j, ring, x] = best
-                    store_path(cur, out, True)
+                    store_path(cur, out, not single_pass or j > 0)
         if i % 2 == 0:  # (2) horizontal paths of this row and the next, one direction each
+            y_next = min(max(y - back, 0), h - 1)
             for task in prange(2):
-                _horizontal_pair(cost, image, p1, p2, p2_table, y, max(y - 1, 0), task == 0,
+                _horizontal_pair(cost, image, p1, p2, p2_table, y, y_next, task == 0,
                                  left_to_right if task == 0 else right_to_left)
         pair = i % 2
         for c in prange(chunks):  # (3) totals, left selection, right-view candidates
