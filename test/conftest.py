@@ -115,11 +115,11 @@ def thread_settings() -> Iterator[None]:
     cv2.setNumThreads(cv2_threads)
 
 
-@pytest.fixture(scope='session')
-def stereo_reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Any]]:
-    """Every bundled stereo bag replayed once through the default pipeline
-    (rectify -> sgm_stereo -> cross_check -> point_cloud) and scored by eval:
-    ``{bag: (output bag, EvalReport)}``. Shared by the accuracy tests."""
+def _replay_bundled(tmp_path_factory: pytest.TempPathFactory,
+                    sgm: dict[str, int]) -> dict[str, tuple[Path, Any]]:
+    """Every bundled stereo bag through config/stereo_pipeline.yaml (rectify -> sgm_stereo
+    -> cross_check -> point_cloud), the SGM node's parameters overridden by ``sgm`` and its
+    disparity window set per bag, scored by eval: ``{bag: (output bag, EvalReport)}``."""
     from depth_nodes.ros.graph import load_graph_config
     from depth_nodes.tools.evaluate import evaluate_bag
     from depth_nodes.tools.process import process_bag
@@ -129,9 +129,24 @@ def stereo_reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[
     for name, disparities in STEREO_RANGES.items():
         folder = tmp_path_factory.mktemp(name)
         params = folder / 'params.yaml'
-        params.write_text(f'sgm_stereo:\n  ros__parameters: {{disparity_range: {disparities}}}\n')
+        values = ', '.join(f'{k}: {v}' for k, v in {**sgm, 'disparity_range': disparities}.items())
+        params.write_text(f'sgm_stereo:\n  ros__parameters: {{{values}}}\n')
         report = process_bag(REPO / 'bags' / name, folder / 'out', config=config,
                              params_file=params)
         assert sum(sum(c.values()) for c in report.drops.values()) == 0, report.format()
         out[name] = (folder / 'out', evaluate_bag(folder / 'out'))
     return out
+
+
+@pytest.fixture(scope='session')
+def stereo_reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Any]]:
+    """The bundled bags through the shipped stereo graph as it is (5 paths). Shared by the
+    accuracy tests."""
+    return _replay_bundled(tmp_path_factory, {})
+
+
+@pytest.fixture(scope='session')
+def stereo_reports_8_paths(tmp_path_factory: pytest.TempPathFactory
+                           ) -> dict[str, tuple[Path, Any]]:
+    """The same with ``paths: 8``, the most accurate setting the README also reports."""
+    return _replay_bundled(tmp_path_factory, {'paths': 8})

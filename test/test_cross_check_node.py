@@ -213,9 +213,30 @@ AUC_TARGET = 2.0
 
 
 @pytest.fixture
-def reports(stereo_reports: dict[str, tuple[Path, EvalReport]]
+def reports(stereo_reports_8_paths: dict[str, tuple[Path, EvalReport]]
             ) -> dict[str, tuple[Path, EvalReport]]:
-    return stereo_reports
+    """The node's accuracy is measured on the most accurate matcher setting (8 paths);
+    :func:`test_shipped_graph_meets_the_confidence_targets` checks the shipped one."""
+    return stereo_reports_8_paths
+
+
+@pytest.mark.parametrize('bag', sorted(STEREO_RANGES))
+def test_shipped_graph_meets_the_confidence_targets(
+        stereo_reports: dict[str, tuple[Path, EvalReport]], bag: str) -> None:
+    """The issue's targets on the shipped graph (5 paths): AUC / optimal AUC at most 2, and
+    the checked disparity more accurate (sparse) than the raw one and than every OpenCV
+    configuration with its own checks, at a higher density than those."""
+    rows = {r.method: r for r in stereo_reports[bag][1].rows}
+    checked, raw = rows[CHECKED], rows[RAW]
+    assert checked.missing_frames == 0
+    assert checked.auc_ratio is not None
+    assert checked.auc_ratio <= AUC_TARGET
+    assert checked.bad_sparse < raw.bad_sparse
+    assert checked.density > 0.9 * raw.density
+    for name, theirs in rows.items():
+        if name.startswith('opencv'):
+            assert checked.bad_sparse < theirs.bad_sparse, name
+            assert checked.density > theirs.density, name
 
 
 @pytest.mark.parametrize('bag', sorted(STEREO_RANGES))

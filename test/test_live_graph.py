@@ -33,6 +33,7 @@ from stereo_msgs.msg import DisparityImage
 from conftest import REPO, run_cli
 from depth_nodes.core.sgm.matcher import SgmMatcher, SgmParams
 from depth_nodes.ros.disparity import read_disparity
+from depth_nodes.ros.graph import load_graph_config
 from depth_nodes.ros.image import image_to_array
 from depth_nodes.ros.pointcloud import read_pointcloud
 from depth_nodes.tools.live_graph import StereoFeeder, StereoFrame, load_stereo_frames
@@ -42,6 +43,9 @@ pytestmark = pytest.mark.ros
 WATCH = ['/stereo/left/image_rect', '/stereo/right/image_rect', '/stereo/disparity',
          '/stereo/points2']
 SGM = '/stereo/sgm_stereo'
+#: The shipped graph's matcher: SgmParams' defaults but for its path count.
+SHIPPED_PATHS = next(n for n in load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml').nodes
+                     if n.plugin == 'sgm_stereo').parameters['paths']
 
 
 class _Live:
@@ -107,7 +111,8 @@ class _Live:
         left, right = (image_to_array(self.feeder.message(f'/stereo/{side}/image_rect',
                                                           stamp, Image))
                        for side in ('left', 'right'))
-        return SgmMatcher(SgmParams(**params)).match(left, right).disparity
+        return SgmMatcher(SgmParams(**{'paths': SHIPPED_PATHS, **params})).match(
+            left, right).disparity
 
     def cloud_z(self, stamp: int) -> np.ndarray:
         cloud = read_pointcloud(self.feeder.message('/stereo/points2', stamp, PointCloud2))
