@@ -1,10 +1,10 @@
 """Census SGM against ground truth on the bundled bags, beside OpenCV's StereoSGBM.
 
 Each bag is replayed through the shipped pipeline (rectify -> sgm_stereo, 5 paths) and
-through the same with 8 paths by the bag harness, then scored by `depth-nodes eval` on the same rectified images and the same
-disparity window for every matcher. The issue's targets are the assertions: dense bad-2 at
-most 0.7x OpenCV's best configuration, and sparse bad-2 lower than every OpenCV
-configuration at an equal or higher density.
+through the same with 8 paths by the bag harness, then scored by `depth-nodes eval` on the
+same rectified images and the same disparity window for every matcher. The issue's targets
+are the assertions: dense bad-2 at most 0.7x OpenCV's best configuration, and sparse bad-2
+lower than every OpenCV configuration at an equal or higher density.
 """
 
 from __future__ import annotations
