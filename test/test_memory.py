@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 
@@ -28,9 +29,14 @@ if role == 'pub':
     pub = node.create_publisher(PointCloud2, 'cloud', qos)
     msg = PointCloud2(height=1, width=307200, point_step=32, row_step=9830400)
     msg.data = bytes(9830400)
-    while True:
-        pub.publish(msg)
-        time.sleep(0.05)
+    try:
+        while True:
+            pub.publish(msg)
+            time.sleep(0.05)
+    except KeyboardInterrupt:  # stopped by the test: shut down cleanly (see _faults)
+        node.destroy_node()
+        rclpy.try_shutdown()
+        sys.exit(0)
 faults = []
 node.create_subscription(PointCloud2, 'cloud', lambda data: faults.append(
     resource.getrusage(resource.RUSAGE_SELF).ru_minflt), qos, raw=True)
@@ -39,6 +45,8 @@ while len(faults) < 25 and time.monotonic() < deadline:
     rclpy.spin_once(node, timeout_sec=0.1)
 assert len(faults) == 25, f'received {len(faults)} messages in 60 s'
 print(faults[24] - faults[4])
+node.destroy_node()
+rclpy.shutdown()
 '''
 
 
@@ -49,8 +57,14 @@ def _faults(mode: str, env: dict[str, str]) -> int:
         out = subprocess.run([sys.executable, '-c', SCRIPT, mode], capture_output=True,
                              text=True, env=env, timeout=120, check=True)
     finally:
-        publisher.kill()
-        publisher.wait()
+        # Ctrl-C rather than a kill: a killed process leaves its Fast DDS shared-memory
+        # segment (64 MiB with the large-message profile) in /dev/shm
+        publisher.send_signal(signal.SIGINT)
+        try:
+            publisher.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            publisher.kill()
+            publisher.wait()
     return int(out.stdout.split()[-1])
 
 

@@ -4,6 +4,7 @@ the node's reasons for refusing), dump into a params file that another node star
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -53,8 +54,14 @@ def _start_sgm_node(env: dict[str, str], *ros_args: str) -> subprocess.Popen[str
 
 
 def _stop(proc: subprocess.Popen[str]) -> None:
-    proc.kill()
-    proc.communicate(timeout=30)
+    """Ctrl-C, as a user stops a node: it shuts down cleanly, and so removes its Fast DDS
+    shared-memory segment (a killed process leaves its 64 MiB in /dev/shm)."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate(timeout=30)
 
 
 @pytest.fixture(scope='module')
