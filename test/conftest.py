@@ -103,9 +103,10 @@ def tuner(node: Any, context: Context) -> Iterator[Callable[..., list[SetParamet
 STEREO_RANGES = {'stereo_vga': 128, 'stereo_qvga_color': 64, 'stereo_qvga_fisheye': 64}
 
 
-@pytest.fixture
+@pytest.fixture(autouse=True)
 def thread_settings() -> Iterator[None]:
-    """Restore this thread's numba threads and OpenCV's after a test that changes them."""
+    """Restore this thread's numba threads and OpenCV's after every test: a node's frame
+    sets them (its `threads` parameter), and later tests must not inherit that."""
     import cv2
     import numba
 

@@ -179,7 +179,6 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert node.params.values['disp12_max_diff'] == 3
 
 
-@pytest.mark.usefixtures('thread_settings')
 def test_threads_parameter_applies_from_the_next_frame(node: Any, context: Context) -> None:
     with tuner(node, context) as tune:
         node.on_frame(*_inputs())

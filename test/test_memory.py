@@ -65,6 +65,7 @@ def _faults(mode: str, env: dict[str, str]) -> int:
         except subprocess.TimeoutExpired:
             publisher.kill()
             publisher.wait()
+    assert publisher.returncode == 0  # it shut down cleanly (a kill gives -9)
     return int(out.stdout.split()[-1])
 
 

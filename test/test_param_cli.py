@@ -53,15 +53,17 @@ def _start_sgm_node(env: dict[str, str], *ros_args: str) -> subprocess.Popen[str
     raise AssertionError(f'sgm_stereo did not come up within {START_TIMEOUT:g} s')
 
 
-def _stop(proc: subprocess.Popen[str]) -> None:
+def _stop(proc: subprocess.Popen[str]) -> str:
     """Ctrl-C, as a user stops a node: it shuts down cleanly, and so removes its Fast DDS
-    shared-memory segment (a killed process leaves its 64 MiB in /dev/shm)."""
+    shared-memory segment (a killed process leaves its 64 MiB in /dev/shm). Returns what
+    the node printed; a node that does not exit within 30 s is killed (exit status -9)."""
     proc.send_signal(signal.SIGINT)
     try:
-        proc.communicate(timeout=30)
+        output, _ = proc.communicate(timeout=30)
     except subprocess.TimeoutExpired:
         proc.kill()
-        proc.communicate(timeout=30)
+        output, _ = proc.communicate(timeout=30)
+    return output or ''
 
 
 @pytest.fixture(scope='module')
@@ -73,7 +75,8 @@ def graph() -> Iterator[dict[str, str]]:
     try:
         yield env
     finally:
-        _stop(proc)
+        output = _stop(proc)
+    assert proc.returncode == 0, output  # a clean exit on Ctrl-C
 
 
 def _param(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
@@ -240,4 +243,5 @@ def test_dump_round_trips_through_params_file(graph: dict[str, str], tmp_path: P
         assert again.returncode == 0, again.stderr
         assert yaml.safe_load(again.stdout) == first
     finally:
-        _stop(proc)
+        output = _stop(proc)
+    assert proc.returncode == 0, output  # a clean exit on Ctrl-C

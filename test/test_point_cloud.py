@@ -127,7 +127,6 @@ def test_gt_disparity_gives_gt_points_and_colours(node: Any) -> None:
                                   points['z'])
 
 
-@pytest.mark.usefixtures('thread_settings')
 def test_threads_parameter_is_applied_to_the_frame(context: Context) -> None:
     node = _make(context, threads=2)
     try:

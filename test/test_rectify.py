@@ -250,7 +250,11 @@ def test_eval_reports_rectification_accuracy(processed: dict[str, Path]) -> None
 
 
 def test_bench_command_prints_its_figures() -> None:
+    cv2.setNumThreads(2)  # as `depth-nodes bench --threads 2` does (restored by conftest)
     result = bench_rectify(width=160, height=120, repeats=3)
+    # the node's own `threads` parameter follows the caller's setting instead of
+    # resetting OpenCV to its default of 1 thread for the baselines timed after it
+    assert result.threads == cv2.getNumThreads() == 2
     assert min(result.node_ms, result.remap_ms, result.undistort_ms) > 0
     text = result.format()
     assert 'node / remap' in text

@@ -127,7 +127,6 @@ def test_interpolation_changes_through_the_parameter_service(node: Any,
         assert node.get_parameter('queue_size').value == 5
 
 
-@pytest.mark.usefixtures('thread_settings')
 def test_threads_parameter_is_applied_to_the_frame(context: Context) -> None:
     node = RectifyNode(context=context, parameter_overrides=[Parameter('threads', value=2)])
     node.outbox = []

@@ -115,6 +115,9 @@ def test_aggregation_matches_reference(paths: int, scale: float, intensity: int)
                                  census_window=(5, 5), intensity_weight=intensity)
     expected = aggregate_reference(cost, left.astype(np.float32), paths, 5, 60, scale)
     np.testing.assert_array_equal(matcher.total.astype(np.int64), expected)
+    matcher.match(left, right)  # without keep_total the volume holds no total
+    with pytest.raises(RuntimeError, match='kept no total'):
+        _ = matcher.total
 
 
 @pytest.mark.parametrize('subpixel', ['none', 'parabola', 'equiangular'])

@@ -85,7 +85,6 @@ def test_count_must_be_positive() -> None:
         OrderedWorkers(0, print)
 
 
-@pytest.mark.usefixtures('thread_settings')
 def test_use_threads_sets_numba_for_the_calling_thread_and_opencv_for_the_process() -> None:
     cores = numba.config.NUMBA_NUM_THREADS
     use_threads(1)

@@ -103,8 +103,9 @@ PARAMETERS = [
               'graph of several processes on few cores, 1 wastes less CPU on waiting '
               'threads (see the README, bench --live)', 0, 1024),
     ParamSpec('parallel_frames', 1, 'census_sgm: frames matched at once, each on its own '
-              'thread with its own buffers (129 MB at 640x480x128); 2 keeps two cores busy '
-              'without per-row synchronisation (see the README, bench --live)', 1, 16,
+              'thread with its own buffers (640x480x128: 48 MB with 5 paths, 129 MB with 8); '
+              '2 keeps two cores busy without per-row synchronisation (see the README, '
+              'bench --live)', 1, 16,
               read_only=True),
     ParamSpec('correlation_window_size', 5, 'opencv backend: block size (odd)', 1, 255,
               check=_odd),

@@ -93,8 +93,10 @@ def bench_rectify(*, width: int = 640, height: int = 480, repeats: int = 200,
     info_msg = model_to_camera_info(camera, header)
     context = Context()
     rclpy.init(args=[], context=context)
+    # the node's threads as the caller set OpenCV's (the node applies them every frame)
     node = RectifyNode(context=context, parameter_overrides=[
-        Parameter('interpolation', value=interpolation)])
+        Parameter('interpolation', value=interpolation),
+        Parameter('threads', value=cv2.getNumThreads())])
     try:
         published: list[str] = []
         node.sink = lambda topic, msg: published.append(topic)  # keep no pixels

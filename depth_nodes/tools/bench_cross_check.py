@@ -43,8 +43,10 @@ class CrossCheckBench:
 
 def bench_cross_check(repeats: int = 20) -> CrossCheckBench:
     """Time the cross-check of a 640x480 SGM result, beside SGM in the same run."""
+    import cv2
     import rclpy
     from rclpy.context import Context
+    from rclpy.parameter import Parameter
 
     from depth_nodes.core.camera import StereoModel
     from depth_nodes.core.cross_check import cross_check
@@ -70,7 +72,9 @@ def bench_cross_check(repeats: int = 20) -> CrossCheckBench:
     context = Context()
     rclpy.init(args=[], context=context)
     try:
-        node = CrossCheckNode(context=context)
+        # the node's threads as the caller set OpenCV's (the node applies them every frame)
+        node = CrossCheckNode(context=context, parameter_overrides=[
+            Parameter('threads', value=cv2.getNumThreads())])
         out: dict[str, Any] = {}
         node.sink = out.__setitem__
         try:

@@ -45,8 +45,10 @@ class PointCloudBench:
 
 def bench_point_cloud(repeats: int = 20) -> PointCloudBench:
     """Time building a 640x480 colour cloud + depth image, beside SGM in the same run."""
+    import cv2
     import rclpy
     from rclpy.context import Context
+    from rclpy.parameter import Parameter
 
     from depth_nodes.core.camera import StereoModel
     from depth_nodes.core.reproject import reproject_disparity
@@ -70,7 +72,9 @@ def bench_point_cloud(repeats: int = 20) -> PointCloudBench:
     context = Context()
     rclpy.init(args=[], context=context)
     try:
-        node = PointCloudNode(context=context)
+        # the node's threads as the caller set OpenCV's (the node applies them every frame)
+        node = PointCloudNode(context=context, parameter_overrides=[
+            Parameter('threads', value=cv2.getNumThreads())])
         out: dict[str, Any] = {}
         node.sink = out.__setitem__
         try:

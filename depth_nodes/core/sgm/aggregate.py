@@ -13,7 +13,8 @@ Layout: disparity innermost. Directions with a vertical component are swept row 
 earlier rows, so a row is parallel across x. Each L row lives in a small ring buffer
 padded with a large sentinel at both disparity ends, so the inner loop over d has no
 branch. The upward and horizontal directions are fused with the disparity selection in
-``select.py``.
+``select.py``; with a :data:`SINGLE_PASS` path count that kernel runs the downward and
+horizontal directions in one top-down pass and this sweep is not used.
 
 P2 may adapt to the image: P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / scale)), with the
 intensity step truncated to an integer (exact for camera images), looked up in a table.

@@ -156,6 +156,7 @@ class SgmMatcher:
         self._table_key: tuple[Any, ...] = ()
         self._table = p2_table(0, 0, 0.0)
         self._buf: dict[str, Any] = {}
+        self._kept_total = False
         self.allocations = 0
 
     def set_params(self, params: SgmParams) -> None:
@@ -225,6 +226,7 @@ class SgmMatcher:
         single_pass = p.paths in SINGLE_PASS
         if keep_total and b['partial'].shape != cost.shape:  # tests: room for the total
             b['partial'] = np.empty(cost.shape, np.uint16)
+        self._kept_total = keep_total
         if not single_pass:
             sweep_down(cost, left_f, b['dxs'], b['dys'], int(p.P1), int(p.P2), self._table,
                        lb0, lb1, lb2, b['mbuf'], b['partial'], chunks)
@@ -241,7 +243,15 @@ class SgmMatcher:
 
     @property
     def total(self) -> NDArray[np.uint16]:
-        """The aggregated volume of the last ``match(..., keep_total=True)``."""
+        """The aggregated volume of the last match, which must have been
+        ``match(..., keep_total=True)``.
+
+        Raises:
+            RuntimeError: The last match did not keep it.
+        """
+        if not self._kept_total:
+            raise RuntimeError('the last match kept no total: call match(..., '
+                               'keep_total=True)')
         return self._buf['partial']  # type: ignore[no-any-return]
 
 

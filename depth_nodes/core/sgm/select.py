@@ -1,5 +1,8 @@
 """The upward and horizontal SGM paths fused with disparity selection, row by row.
 
+For the single-pass path counts (5: ``aggregate.SINGLE_PASS``) the same kernel runs the
+downward and horizontal paths instead, top to bottom, and no downward sum is stored.
+
 While a row's total is still in cache it is turned into: the left disparity
 (winner-take-all, sub-pixel, uniqueness), the right-view disparity (the minimum along the
 diagonal of the same total, so no second matching), and the cost ratio best / second best.
@@ -240,7 +243,7 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
         y = i if single_pass else h - 1 - i
         ring = i % 3
         cur_ring = _ring(lb0, lb1, lb2, ring)
-        for c in prange(chunks):  # (1) upward paths + downward sum
+        for c in prange(chunks):  # (1) upward paths + downward sum (one pass: downward)
             for x in range(c * w // chunks, (c + 1) * w // chunks):
                 out = total[x]
                 if not single_pass:
