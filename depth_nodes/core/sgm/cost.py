@@ -185,6 +185,22 @@ def _pixel_costs(cl: np.unsignedinteger[Any], census_rm: NDArray[np.unsignedinte
         out[np.uint64(k)] = np.uint8(min(value, top))
 
 
+@njit(cache=True, nogil=True, inline='always')
+def _disparity_span(x: int, min_disparity: int, w: int, cell: U8) -> tuple[int, int]:
+    """The indices [k_lo, k_hi] of pixel x whose right pixel x - min_disparity - k lies in
+    the image (empty when k_lo > k_hi); every other entry of ``cell`` gets
+    :data:`OUT_OF_RANGE_COST`."""
+    n = cell.shape[0]
+    xr0 = x - min_disparity  # right pixel of k = 0; of k: xr0 - k
+    k_lo = max(0, xr0 - (w - 1))
+    k_hi = min(n - 1, xr0)
+    for k in range(0, min(k_lo, n)):
+        cell[k] = OUT_OF_RANGE_COST
+    for k in range(max(k_hi + 1, 0), n):
+        cell[k] = OUT_OF_RANGE_COST
+    return k_lo, k_hi
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def _cost_kernel(census_l: NDArray[np.unsignedinteger[Any]],
                  census_rm: NDArray[np.unsignedinteger[Any]], left: NDArray[np.float32],
@@ -194,21 +210,16 @@ def _cost_kernel(census_l: NDArray[np.unsignedinteger[Any]],
                  intensity_weight: int, use_bt: bool, truncation: int, out: U8) -> None:
     """The cost volume. Every right-image array (``*_rm``, ``right_m``) is mirrored
     left-right: disparity k's right pixel xr0 - k is entry W - 1 - xr0 + k."""
-    h, w, n = out.shape
+    h, w = out.shape[:2]
     for y in prange(h):
         for x in range(w):
-            xr0 = x - min_disparity  # right pixel of k = 0; of k: xr0 - k
-            k_lo = max(0, xr0 - (w - 1))
-            k_hi = min(n - 1, xr0)
             cell = out[y, x]
-            for k in range(0, min(k_lo, n)):
-                cell[k] = OUT_OF_RANGE_COST
-            for k in range(max(k_hi + 1, 0), n):
-                cell[k] = OUT_OF_RANGE_COST
+            k_lo, k_hi = _disparity_span(x, min_disparity, w, cell)
             if k_lo > k_hi:
                 continue
+            xm0 = w - 1 - (x - min_disparity)  # mirrored index of k = 0's right pixel
             _pixel_costs(census_l[y, x], census_rm[y], left[y, x], lo_l[y, x], hi_l[y, x],
-                         right_m[y], lo_rm[y], hi_rm[y], w - 1 - xr0, k_lo, k_hi,
+                         right_m[y], lo_rm[y], hi_rm[y], xm0, k_lo, k_hi,
                          census_weight, intensity_weight, use_bt, truncation, cell)
 
 
@@ -278,7 +289,7 @@ def _cost_kernel_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
                     truncation: int, out: U8) -> None:
     """:func:`_cost_kernel` for uint8 images and a census of at most 32 bits (doubled
     intensities, see :func:`_pixel_costs_16`)."""
-    h, w, n = out.shape
+    h, w = out.shape[:2]
     for y in prange(h):
         # the right census row as two 16-bit halves (mirrored like every right array)
         rm_lo = np.empty(w, np.uint16)
@@ -287,20 +298,15 @@ def _cost_kernel_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
             rm_lo[x] = np.uint16(census_rm[y, x] & np.uint32(0xFFFF))
             rm_hi[x] = np.uint16(census_rm[y, x] >> np.uint32(16))
         for x in range(w):
-            xr0 = x - min_disparity  # right pixel of k = 0; of k: xr0 - k
-            k_lo = max(0, xr0 - (w - 1))
-            k_hi = min(n - 1, xr0)
             cell = out[y, x]
-            for k in range(0, min(k_lo, n)):
-                cell[k] = OUT_OF_RANGE_COST
-            for k in range(max(k_hi + 1, 0), n):
-                cell[k] = OUT_OF_RANGE_COST
+            k_lo, k_hi = _disparity_span(x, min_disparity, w, cell)
             if k_lo > k_hi:
                 continue
+            xm0 = w - 1 - (x - min_disparity)  # mirrored index of k = 0's right pixel
             cl = census_l[y, x]
             _pixel_costs_16(np.uint16(cl & np.uint32(0xFFFF)), np.uint16(cl >> np.uint32(16)),
                             rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
-                            lo_rm[y], hi_rm[y], w - 1 - xr0, k_lo, k_hi, census_weight,
+                            lo_rm[y], hi_rm[y], xm0, k_lo, k_hi, census_weight,
                             intensity_weight, use_bt, truncation, cell)
 
 
