@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -58,6 +59,20 @@ def run_cli(args: list[str], env: dict[str, str] | None = None,
         [sys.executable, '-m', 'depth_nodes.tools.cli', *args],
         capture_output=True, text=True, env=env, timeout=timeout, cwd=REPO, check=False,
     )
+
+
+def interrupt(proc: subprocess.Popen[Any], timeout: float = 30) -> str:
+    """Stop a node process with Ctrl-C, as a user does, and return what it printed (when
+    its output is a pipe). A clean shutdown removes the process's Fast DDS shared-memory
+    segment; one still running after ``timeout`` seconds is killed (exit status -9), which
+    leaves its 64 MiB segment in /dev/shm."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        output, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        output, _ = proc.communicate()
+    return output or ''
 
 
 @pytest.fixture

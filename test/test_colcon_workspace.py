@@ -10,7 +10,6 @@ one, while `depth_nodes` itself is imported from the install space.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -30,7 +29,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from test_launch_files import PACKAGE, check_launch_file, node_scripts
 
-from conftest import REPO
+from conftest import REPO, interrupt
 from depth_nodes.nodes.rectify import PARAMETERS as RECTIFY_PARAMETERS
 from depth_nodes.ros.graph import load_params_file
 from depth_nodes.ros.image import image_to_array, to_gray
@@ -272,12 +271,7 @@ def test_node_from_install_space_answers_parameter_services_and_rectifies_a_fram
         assert play.returncode == 0, play.stderr
         _spin_until(executor, lambda: len(received) == len(truth))
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            output, _ = proc.communicate(timeout=WAIT)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            output, _ = proc.communicate()
+        output = interrupt(proc, timeout=WAIT)
     assert proc.returncode == 0, output  # clean shutdown on Ctrl-C
     assert 'Traceback' not in output, output
 

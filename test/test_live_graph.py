@@ -11,7 +11,6 @@ next frame on. An invalid value is refused with its reason and changes nothing.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -30,7 +29,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from conftest import REPO, run_cli
+from conftest import REPO, interrupt, run_cli
 from depth_nodes.core.sgm.matcher import SgmMatcher, SgmParams
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.graph import load_graph_config
@@ -155,11 +154,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[_Live]:
         state.frame(0, timeout=300)  # warm-up: numba may compile on a fresh clone
         yield state
     finally:
-        pipeline.send_signal(signal.SIGINT)
-        try:
-            pipeline.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            pipeline.kill()
+        interrupt(pipeline)
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)

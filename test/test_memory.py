@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 
+from conftest import interrupt
 from depth_nodes.ros.memory import USER_VARIABLES, keep_freed_memory
 
 #: Publisher (argv[1] == 'pub': 9.8 MB PointCloud2 messages at 20 Hz until killed) or raw
@@ -57,14 +57,7 @@ def _faults(mode: str, env: dict[str, str]) -> int:
         out = subprocess.run([sys.executable, '-c', SCRIPT, mode], capture_output=True,
                              text=True, env=env, timeout=120, check=True)
     finally:
-        # Ctrl-C rather than a kill: a killed process leaves its Fast DDS shared-memory
-        # segment (64 MiB with the large-message profile) in /dev/shm
-        publisher.send_signal(signal.SIGINT)
-        try:
-            publisher.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            publisher.kill()
-            publisher.wait()
+        interrupt(publisher)  # not a kill, which would leave its segment in /dev/shm
     assert publisher.returncode == 0  # it shut down cleanly (a kill gives -9)
     return int(out.stdout.split()[-1])
 

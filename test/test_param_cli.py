@@ -4,7 +4,6 @@ the node's reasons for refusing), dump into a params file that another node star
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -15,7 +14,7 @@ import pytest
 import yaml
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 
-from conftest import _DOMAINS, REPO, TEST_DIR, run_cli
+from conftest import _DOMAINS, REPO, TEST_DIR, interrupt, run_cli
 from depth_nodes.tools.param import coerce_to_declared, nest, parse_value, to_python
 
 pytestmark = pytest.mark.ros
@@ -49,21 +48,8 @@ def _start_sgm_node(env: dict[str, str], *ros_args: str) -> subprocess.Popen[str
                                  f'{proc.stdout.read() if proc.stdout else ""}')
         if run_cli(['param', 'list', NODE, '--timeout', '5'], env=env).returncode == 0:
             return proc
-    _stop(proc)
+    interrupt(proc)
     raise AssertionError(f'sgm_stereo did not come up within {START_TIMEOUT:g} s')
-
-
-def _stop(proc: subprocess.Popen[str]) -> str:
-    """Ctrl-C, as a user stops a node: it shuts down cleanly, and so removes its Fast DDS
-    shared-memory segment (a killed process leaves its 64 MiB in /dev/shm). Returns what
-    the node printed; a node that does not exit within 30 s is killed (exit status -9)."""
-    proc.send_signal(signal.SIGINT)
-    try:
-        output, _ = proc.communicate(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        output, _ = proc.communicate(timeout=30)
-    return output or ''
 
 
 @pytest.fixture(scope='module')
@@ -75,7 +61,7 @@ def graph() -> Iterator[dict[str, str]]:
     try:
         yield env
     finally:
-        output = _stop(proc)
+        output = interrupt(proc)
     assert proc.returncode == 0, output  # a clean exit on Ctrl-C
 
 
@@ -243,5 +229,5 @@ def test_dump_round_trips_through_params_file(graph: dict[str, str], tmp_path: P
         assert again.returncode == 0, again.stderr
         assert yaml.safe_load(again.stdout) == first
     finally:
-        output = _stop(proc)
+        output = interrupt(proc)
     assert proc.returncode == 0, output  # a clean exit on Ctrl-C
