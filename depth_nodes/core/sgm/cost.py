@@ -342,9 +342,7 @@ def cost_volume(left: NDArray[np.generic], right: NDArray[np.generic], *,
         The (H, W, D) uint8 cost volume.
     """
     left, right = np.asarray(left), np.asarray(right)
-    lf = np.ascontiguousarray(left, dtype=np.float32)
-    rf = np.ascontiguousarray(right, dtype=np.float32)
-    h, w = lf.shape
+    h, w = left.shape
     if out is None:
         out = np.empty((h, w, disparity_range), np.uint8)
     if census_buffers is None:
@@ -352,8 +350,8 @@ def cost_volume(left: NDArray[np.generic], right: NDArray[np.generic], *,
         census_buffers = (np.empty((h, w), dtype), np.empty((h, w), dtype))
     cl, crm = census_buffers
     if census_weight:
-        census_transform(lf, census_window, cl)
-        census_transform(rf, census_window, crm, mirrored=True)
+        census_transform(left, census_window, cl)
+        census_transform(right, census_window, crm, mirrored=True)
     if left.dtype == np.uint8 and right.dtype == np.uint8 and cl.dtype == np.uint32:
         doubled = [np.empty((h, w), np.int16) for _ in range(6)]
         l2, lo_l2, hi_l2, r2m, lo_rm2, hi_rm2 = doubled
@@ -363,8 +361,9 @@ def cost_volume(left: NDArray[np.generic], right: NDArray[np.generic], *,
                         census_weight, intensity_weight, intensity_cost == 'bt',
                         intensity_truncation, out)
         return out
+    lf = np.ascontiguousarray(left, dtype=np.float32)
     # the right image mirrored (the half-sample range commutes with the mirror)
-    rfm = np.ascontiguousarray(rf[:, ::-1])
+    rfm = np.ascontiguousarray(right[:, ::-1], dtype=np.float32)
     lo_l, hi_l = _half_sample_range(lf)
     lo_rm, hi_rm = _half_sample_range(rfm)
     _cost_kernel(cl, crm, lf, rfm, lo_l, hi_l, lo_rm, hi_rm, min_disparity, census_weight,
