@@ -159,7 +159,8 @@ def _stamp(msg: Any) -> int:
 def test_no_node_crashes_and_all_stop_cleanly(replay: _Replay) -> None:
     assert replay.crashed == {}
     codes = replay.graph.stop()
-    assert codes == dict.fromkeys(codes, 0), codes
+    hung = {name: replay.graph.log(name)[-4000:] for name, code in codes.items() if code}
+    assert codes == dict.fromkeys(codes, 0), (codes, hung)  # with where a hung node stood
 
 
 def test_every_good_frame_and_no_hostile_one_comes_out(replay: _Replay) -> None:

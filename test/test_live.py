@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -136,3 +137,31 @@ def test_record_rejects_relative_topics_and_existing_output(tmp_path: Path,
                      env=ros_env)
     assert result.returncode == 1
     assert 'exists already' in result.stderr
+
+
+def test_a_node_that_ignores_ctrl_c_is_aborted_with_its_stacks_in_its_log(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """GraphProcesses.stop: a process still running after the grace period gets SIGABRT,
+    and Python's fault handler (switched on for every node) writes where it stood."""
+    from depth_nodes.ros.graph import GraphConfig
+    from depth_nodes.tools import live_graph
+
+    monkeypatch.setattr(live_graph, 'STOP_TIMEOUT_S', 1.0)
+    graph = live_graph.GraphProcesses(GraphConfig('hang', []), tmp_path)
+    assert graph.env['PYTHONFAULTHANDLER'] == '1'
+    script = ('import signal, sys, time\n'
+              'signal.signal(signal.SIGINT, signal.SIG_IGN)\n'
+              'print("ready", flush=True)\n'
+              'def wait_forever():\n'
+              '    while True:\n'
+              '        time.sleep(0.1)\n'
+              'wait_forever()\n')
+    with (tmp_path / 'hang.log').open('wb') as log:
+        proc = subprocess.Popen([sys.executable, '-c', script], stdout=log,
+                                stderr=subprocess.STDOUT, env=graph.env)
+    graph.processes['/hang'] = proc
+    while 'ready' not in graph.log('/hang'):
+        assert proc.poll() is None, graph.log('/hang')
+        time.sleep(0.01)
+    assert graph.stop() == {'/hang': -6}  # SIGABRT, not a kill
+    assert 'in wait_forever' in graph.log('/hang')

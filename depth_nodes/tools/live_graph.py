@@ -71,6 +71,9 @@ class GraphProcesses:
         self.config = config
         self.workdir = Path(workdir)
         self.env = dict(os.environ if env is None else env)
+        # a node that hangs or crashes writes every thread's Python stack into its log
+        # (see stop); the user's own setting wins
+        self.env.setdefault('PYTHONFAULTHANDLER', '1')
         self.overrides = overrides or {}
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self.exit_codes: dict[str, int] = {}
@@ -109,8 +112,10 @@ class GraphProcesses:
         return out
 
     def stop(self) -> dict[str, int]:
-        """SIGINT every node, kill what has not exited after :data:`STOP_TIMEOUT_S`;
-        returns the exit statuses (a killed process: -9)."""
+        """SIGINT every node; one still running after :data:`STOP_TIMEOUT_S` gets SIGABRT,
+        so that Python's fault handler writes where each of its threads hung into its log
+        (:meth:`log`), and is killed if even that does not end it. Returns the exit
+        statuses (-6 for a node that had to be aborted, -9 for a killed one)."""
         for proc in self.processes.values():
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
@@ -119,8 +124,12 @@ class GraphProcesses:
             try:
                 self.exit_codes[name] = proc.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                proc.kill()
-                self.exit_codes[name] = proc.wait()
+                proc.send_signal(signal.SIGABRT)
+                try:
+                    self.exit_codes[name] = proc.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    self.exit_codes[name] = proc.wait()
         return self.exit_codes
 
     def __enter__(self) -> GraphProcesses:
