@@ -7,14 +7,26 @@ import pytest
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import aggregate_reference
+from depth_nodes.core.sgm.check import check_disparity, check_disparity_reference
 from depth_nodes.core.sgm.cost import (
+    GAIN_LIMITS,
     census_dtype,
     census_transform,
     census_transform_reference,
     cost_volume,
     cost_volume_reference,
+    fill_outside,
+    matched_brightness,
+    mean_best_cost,
 )
 from depth_nodes.core.sgm.select import select_reference
+
+
+def _outside(shape: tuple[int, int, int], min_disparity: int) -> np.ndarray:
+    """(W, D) True where the right pixel x - min_disparity - k is outside the image."""
+    _, w, n = shape
+    xr = np.arange(w)[:, None] - min_disparity - np.arange(n)[None, :]
+    return (xr < 0) | (xr >= w)
 
 
 def _pair(h: int = 23, w: int = 37, shift: int = 5, seed: int = 0) -> tuple[np.ndarray, ...]:
@@ -79,6 +91,59 @@ def test_cost_volume_matches_reference(settings: dict[str, object], min_disparit
               'census_window': window, **settings}
     np.testing.assert_array_equal(cost_volume(left, right, **kwargs),
                                   cost_volume_reference(left, right, **kwargs))
+    kwargs['match_brightness'] = True  # the intensity term on the brightness-matched right
+    np.testing.assert_array_equal(cost_volume(left, right, **kwargs),
+                                  cost_volume_reference(left, right, **kwargs))
+
+
+@pytest.mark.parametrize('dtype', [np.uint8, np.uint16, np.float32])
+def test_matched_brightness_undoes_a_gain_and_offset(dtype: type) -> None:
+    """A right image 0.8 x + 30 of the left gets the left's mean and spread back (to the
+    rounding of integer images), and keeps its dtype."""
+    rng = np.random.default_rng(1)
+    left = rng.uniform(20, 200, (30, 40)).astype(dtype)
+    right = (left.astype(np.float64) * 0.8 + 30).astype(dtype)
+    mapped = matched_brightness(left, right)
+    assert mapped.dtype == dtype
+    np.testing.assert_allclose(mapped.astype(np.float64), left.astype(np.float64), atol=1.01)
+    flat = matched_brightness(left, np.full_like(left, 7))  # no spread: offset only
+    assert np.allclose(flat.astype(np.float64), left.astype(np.float64).mean(), atol=0.5)
+    dark = matched_brightness(left, (left.astype(np.float64) * 0.01).astype(dtype))
+    assert dark.astype(np.float64).std() <= left.astype(np.float64).std() * GAIN_LIMITS[1] * 0.02
+
+
+def test_brightness_matching_makes_the_cost_indifferent_to_a_gain() -> None:
+    """Census + BT under a 20 % gain and an offset: with matching, the volume is the one
+    of the undistorted pair to within a few grey levels of the intensity term; without,
+    the intensity term is off by the offset nearly everywhere."""
+    left, right = _pair(h=30, w=60)
+    brighter = np.clip(right.astype(np.float64) * 1.2 + 12, 0, 255).astype(np.uint8)
+    kwargs = {'min_disparity': 0, 'disparity_range': 8, 'census_window': (5, 5),
+              'census_weight': 0, 'intensity_weight': 1, 'intensity_truncation': 255}
+    clean = cost_volume(left, right, match_brightness=True, **kwargs).astype(int)
+    matched = cost_volume(left, brighter, match_brightness=True, **kwargs).astype(int)
+    plain = cost_volume(left, brighter, **kwargs).astype(int)
+    inside = ~_outside(clean.shape, 0)[None].repeat(clean.shape[0], 0)
+    assert np.median(np.abs(matched - clean)[inside]) <= 2
+    assert np.median(np.abs(plain - clean)[inside]) >= 10
+
+
+@pytest.mark.parametrize('min_disparity', [0, -5, 4])
+def test_fill_outside_and_mean_best_cost(min_disparity: int) -> None:
+    left, right = _pair()
+    cost = cost_volume(left, right, min_disparity=min_disparity, disparity_range=11,
+                       census_window=(5, 5), intensity_weight=1)
+    outside = _outside(cost.shape, min_disparity)
+    assert (cost[:, outside] == 255).all()
+    inside_before = cost[:, ~outside].copy()
+    full = ~outside.any(axis=1)  # columns where every disparity is inside the image
+    want = cost[::4][:, full].min(axis=2).mean()
+    assert mean_best_cost(cost, min_disparity) == pytest.approx(want)
+    fill_outside(cost, min_disparity, 17)
+    assert (cost[:, outside] == 17).all()
+    np.testing.assert_array_equal(cost[:, ~outside], inside_before)
+    with pytest.raises(ValueError, match=r'value must be in 0\.\.255'):
+        fill_outside(cost, min_disparity, 256)
 
 
 @pytest.mark.parametrize('settings', [
@@ -101,18 +166,31 @@ def test_16_bit_kernel_at_the_extremes_of_uint8(settings: dict[str, object]) -> 
     assert expected[expected < 255].max() == 254  # the clip was reached
 
 
-@pytest.mark.parametrize(('paths', 'scale', 'intensity'), [
-    (4, 0.0, 0), (5, 0.0, 0), (5, 20.0, 1), (8, 0.0, 0), (8, 12.0, 0), (8, 20.0, 1),
-    (16, 0.0, 0), (16, 7.5, 2)])
-def test_aggregation_matches_reference(paths: int, scale: float, intensity: int) -> None:
+@pytest.mark.parametrize(('paths', 'scale', 'intensity', 'border_cost'), [
+    (4, 0.0, 0, 0.0), (5, 0.0, 0, 3.5), (5, 20.0, 1, 0.0), (8, 0.0, 0, 0.0), (8, 12.0, 0, 2.0),
+    (8, 20.0, 1, 3.5), (16, 0.0, 0, 0.0), (16, 7.5, 2, 3.5)])
+def test_aggregation_matches_reference(paths: int, scale: float, intensity: int,
+                                       border_cost: float) -> None:
+    """The aggregated volume equals the reference's over the reference cost volume, whose
+    out-of-image cells hold the cost the matcher chose for them (border_cost x the mean
+    best cost; the maximum when border_cost is 0)."""
     left, right = _pair(h=17, w=29)
     params = SgmParams(min_disparity=-2, disparity_range=9, census_width=5, census_height=5,
                        intensity_weight=intensity, P1=5, P2=60, p2_adaptive_scale=scale,
-                       paths=paths, median_filter=False)
+                       paths=paths, median_filter=False, border_cost=border_cost)
     matcher = SgmMatcher(params)
     matcher.match(left, right, keep_total=True)
     cost = cost_volume_reference(left, right, min_disparity=-2, disparity_range=9,
-                                 census_window=(5, 5), intensity_weight=intensity)
+                                 census_window=(5, 5), intensity_weight=intensity,
+                                 match_brightness=True)
+    outside = _outside(cost.shape, -2)
+    if border_cost:
+        full = ~outside.any(axis=1)
+        want = round(border_cost * cost[::4][:, full].min(axis=2).mean())
+        assert matcher.border_cost == want
+        cost[:, outside] = want
+    else:
+        assert matcher.border_cost == 0
     expected = aggregate_reference(cost, left.astype(np.float32), paths, 5, 60, scale)
     np.testing.assert_array_equal(matcher.total.astype(np.int64), expected)
     matcher.match(left, right)  # without keep_total the volume holds no total
@@ -123,16 +201,24 @@ def test_aggregation_matches_reference(paths: int, scale: float, intensity: int)
 @pytest.mark.parametrize('subpixel', ['none', 'parabola', 'equiangular'])
 @pytest.mark.parametrize(('min_disparity', 'uniqueness'), [(0, 0), (-3, 15), (2, 5)])
 @pytest.mark.parametrize('paths', [8, 5])
+@pytest.mark.parametrize(('border_cost', 'max_diff'), [(0.0, 0.0), (3.5, 1.5)])
 def test_selection_matches_reference(subpixel: str, min_disparity: int, uniqueness: int,
-                                     paths: int) -> None:
+                                     paths: int, border_cost: float, max_diff: float) -> None:
+    """Selection (over every disparity when the border strip extrapolates) and then the
+    left-right and extrapolation rules, against the references of both."""
     left, right = _pair(h=19, w=31, seed=3)
     params = SgmParams(min_disparity=min_disparity, disparity_range=10, census_width=5,
                        census_height=5, P1=4, P2=40, uniqueness_ratio=uniqueness,
-                       subpixel=subpixel, median_filter=False, paths=paths)
+                       subpixel=subpixel, median_filter=False, paths=paths,
+                       border_cost=border_cost, border_extrapolation=0.3,
+                       disp12_max_diff=max_diff, speckle_size=0)
     matcher = SgmMatcher(params)
     result = matcher.match(left, right, keep_total=True)
     want_left, want_right, want_ratio = select_reference(
-        matcher.total, min_disparity=min_disparity, uniqueness=uniqueness, subpixel=subpixel)
+        matcher.total, min_disparity=min_disparity, uniqueness=uniqueness, subpixel=subpixel,
+        extrapolate=border_cost > 0)
+    want_left = check_disparity_reference(want_left, want_right, max_diff=max_diff,
+                                          max_outside=3.0)
     np.testing.assert_allclose(result.disparity, want_left, rtol=0, atol=1e-5)
     np.testing.assert_allclose(result.disparity_right, want_right, rtol=0, atol=1e-5)
     np.testing.assert_allclose(result.cost_ratio, want_ratio, rtol=0, atol=1e-6)
@@ -149,3 +235,21 @@ def test_buffers_are_reused_across_frames() -> None:
     matcher.set_params(SgmParams(disparity_range=12, census_width=5, census_height=5))
     matcher.match(left, right)
     assert matcher.allocations == 2
+
+
+@pytest.mark.parametrize(('max_diff', 'max_outside'), [(0.0, 0.0), (1.0, 2.5), (2.0, 100.0)])
+def test_check_matches_reference(max_diff: float, max_outside: float) -> None:
+    """Random disparities (some NaN, some pointing outside the image) against a random
+    right view: the kernel and the reference invalidate the same pixels."""
+    rng = np.random.default_rng(7)
+    disparity = rng.uniform(-6, 14, (15, 23)).astype(np.float32)
+    disparity[rng.random(disparity.shape) < 0.1] = np.nan
+    right = (disparity + rng.normal(0, 1.5, disparity.shape)).astype(np.float32)
+    right[rng.random(right.shape) < 0.1] = np.nan
+    want = check_disparity_reference(disparity, right, max_diff=max_diff,
+                                     max_outside=max_outside)
+    got = disparity.copy()
+    check_disparity(got, right, max_diff=max_diff, max_outside=max_outside)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_array_equal(got[~np.isnan(got)], want[~np.isnan(want)])
+    assert np.isnan(want).sum() > np.isnan(disparity).sum() or max_diff == 0

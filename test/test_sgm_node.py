@@ -231,6 +231,34 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert not np.array_equal(single.disparity, one_thread, equal_nan=True)
 
 
+def test_the_checks_of_the_raw_output_are_parameters(node: Any, context: Context) -> None:
+    """The raw output's own checks (left-right, speckles, border extrapolation, brightness
+    matching) reach the matcher from the node's parameters: each change gives the core's
+    output for the new values, and switching them all off keeps every pixel."""
+    with tuner(node, context) as tune:
+        node.on_frame(*_inputs())
+        checked = read_disparity(node.outbox['/disparity']).disparity.copy()
+        results = tune(disp12_max_diff=0, speckle_size=0, uniqueness_ratio=0.0,
+                       border_cost=3.5, border_extrapolation=1.0)
+        assert all(r.successful for r in results), results
+        node.on_frame(*_inputs())
+        loose = read_disparity(node.outbox['/disparity']).disparity.copy()
+        assert np.isfinite(loose).all()  # no check left: every pixel has a disparity
+        assert np.isnan(checked).sum() > 0
+        for change in ({'border_cost': 0.0}, {'match_brightness': False},
+                       {'disp12_max_diff': 1, 'speckle_size': 50, 'speckle_range': 1}):
+            results = tune(**change)
+            assert all(r.successful for r in results), results
+            node.on_frame(*_inputs())
+            want = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                                   FRAME.right_rect_gt)
+            np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
+                                          want.disparity)
+        (rejected,) = tune(border_extrapolation=1.5)
+        assert not rejected.successful
+        assert 'out of range' in rejected.reason
+
+
 def test_opencv_backend_matches_stereosgbm(context: Context) -> None:
     node = SgmStereoNode(context=context, parameter_overrides=[
         Parameter('backend', value='opencv'), Parameter('disparity_range', value=48)])

@@ -9,11 +9,17 @@ ApproximateTime policy). Publishes ``disparity`` (stereo_msgs/DisparityImage, le
 winner: low means unambiguous), the signals the cross-check node needs.
 
 Parameters share stereo_image_proc's names where the meaning is the same (min_disparity,
-disparity_range, uniqueness_ratio, P1, P2, queue_size, approximate_sync, and for the
-``opencv`` backend correlation_window_size, full_dp, prefilter_cap, speckle_size,
-speckle_range, disp12_max_diff); all but the synchronisation ones change at runtime and
-apply from the next frame. ``backend: opencv`` runs OpenCV's StereoSGBM for comparison
-(it publishes ``disparity`` only).
+disparity_range, uniqueness_ratio, P1, P2, speckle_size, speckle_range, disp12_max_diff,
+queue_size, approximate_sync, and for the ``opencv`` backend correlation_window_size,
+full_dp, prefilter_cap); all but the synchronisation ones change at runtime and apply from
+the next frame. ``backend: opencv`` runs OpenCV's StereoSGBM for comparison (it publishes
+``disparity`` only).
+
+The census matcher's ``disparity`` is checked like StereoSGBM's: uniqueness, a left-right
+check against the right view taken from the same volume (``disp12_max_diff``), speckle
+removal. Its left border strip, where the match may lie outside the right image, takes
+the disparity its neighbours carry in (``border_cost``) up to ``border_extrapolation`` x
+disparity_range px past the border; beyond that the pixels are invalid.
 
 Frames without output are counted and logged with a reason: ``size_mismatch``,
 ``encoding_mismatch``, ``unsupported_encoding``, ``malformed_image``, ``uncalibrated``,
@@ -84,7 +90,7 @@ PARAMETERS = [
     ParamSpec('P1', 18.0, 'Penalty of a 1 px disparity change between neighbours',
               0.0, 4000.0),
     ParamSpec('P2', 220.0, 'Penalty of a larger disparity change (>= P1)', 0.0, 7936.0),
-    ParamSpec('uniqueness_ratio', 20.0, 'Percent by which the best cost must beat the best '
+    ParamSpec('uniqueness_ratio', 10.0, 'Percent by which the best cost must beat the best '
               'non-neighbouring disparity', 0.0, 99.0),
     ParamSpec('paths', 8, 'Aggregation paths: 4, 5 (one pass), 8 or 16', 4, 16, check=_paths),
     ParamSpec('census_width', 5, 'Census window width (odd)', 3, 9, check=_odd),
@@ -94,11 +100,25 @@ PARAMETERS = [
     ParamSpec('intensity_cost', 'bt', 'Intensity cost: bt (Birchfield-Tomasi) or ad',
               check=_one_of(('bt', 'ad'))),
     ParamSpec('intensity_truncation', 30, 'Cap of the intensity cost, grey levels', 1, 255),
-    ParamSpec('p2_adaptive_scale', 20.0, 'Grey-level scale of the image-adaptive P2 (0: '
+    ParamSpec('p2_adaptive_scale', 5.0, 'Grey-level scale of the image-adaptive P2 (0: '
               'constant P2)', 0.0, 255.0),
     ParamSpec('subpixel', 'parabola', 'Sub-pixel refinement: parabola, equiangular or none',
               check=_one_of(list(SUBPIXEL_MODES))),
     ParamSpec('median_filter', False, '3x3 median on the left disparity'),
+    ParamSpec('match_brightness', True, 'census_sgm: give the right image the left\'s mean '
+              'and spread before the intensity cost (a gain or offset between the cameras)'),
+    ParamSpec('border_cost', 3.5, 'census_sgm: cost of a disparity whose match is outside '
+              'the right image, in units of the frame\'s mean best cost; the left border '
+              'strip then takes its neighbours\' disparity (0: never chosen)', 0.0, 100.0),
+    ParamSpec('border_extrapolation', 0.25, 'census_sgm: how far past the image border an '
+              'extrapolated disparity is published, as a fraction of disparity_range',
+              0.0, 1.0),
+    ParamSpec('speckle_size', 100, 'Largest area in px of a disparity region removed as a '
+              'speckle (0: off)', 0, 100000),
+    ParamSpec('speckle_range', 2, 'Largest disparity step in px within one speckle region',
+              0, 64),
+    ParamSpec('disp12_max_diff', 2, 'Left-right check: largest |d_left - d_right| in px '
+              '(0 or -1: off)', -1, 128),
     ParamSpec('threads', 0, 'Threads of the matcher (both backends); 0: every core. In a '
               'graph of several processes on few cores, 1 wastes less CPU on waiting '
               'threads (see the README, bench --live)', 0, 1024),
@@ -111,9 +131,6 @@ PARAMETERS = [
               check=_odd),
     ParamSpec('full_dp', True, 'opencv backend: MODE_HH (8 paths) instead of MODE_SGBM'),
     ParamSpec('prefilter_cap', 63, 'opencv backend: prefilter cap', 1, 63),
-    ParamSpec('speckle_size', 100, 'opencv backend: speckle window size', 0, 10000),
-    ParamSpec('speckle_range', 2, 'opencv backend: speckle range', 0, 64),
-    ParamSpec('disp12_max_diff', 1, 'opencv backend: left-right check (-1 off)', -1, 128),
 ]
 
 
@@ -145,7 +162,11 @@ def sgm_params(values: Mapping[str, Any]) -> SgmParams:
         P1=round(values['P1']), P2=round(values['P2']),
         p2_adaptive_scale=values['p2_adaptive_scale'], paths=values['paths'],
         uniqueness_ratio=values['uniqueness_ratio'], subpixel=values['subpixel'],
-        median_filter=values['median_filter'])
+        median_filter=values['median_filter'], match_brightness=values['match_brightness'],
+        border_cost=values['border_cost'],
+        border_extrapolation=values['border_extrapolation'],
+        disp12_max_diff=values['disp12_max_diff'], speckle_size=values['speckle_size'],
+        speckle_range=values['speckle_range'])
 
 
 def opencv_settings(values: Mapping[str, Any]) -> SgbmSettings:

@@ -17,6 +17,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from depth_nodes.core.cross_check import remove_speckles
 from depth_nodes.core.sgm.aggregate import (
     SINGLE_PASS,
     VERTICAL_DIRECTIONS,
@@ -24,7 +25,14 @@ from depth_nodes.core.sgm.aggregate import (
     p2_table,
     sweep_down,
 )
-from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST, census_dtype, cost_volume
+from depth_nodes.core.sgm.check import check_disparity
+from depth_nodes.core.sgm.cost import (
+    OUT_OF_RANGE_COST,
+    census_dtype,
+    cost_volume,
+    fill_outside,
+    mean_best_cost,
+)
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, upward_horizontal_select
 
 F32 = NDArray[np.float32]
@@ -57,9 +65,24 @@ class SgmParams:
             disparity (OpenCV's rule); 0 disables the check.
         subpixel: ``'parabola'``, ``'equiangular'`` or ``'none'``.
         median_filter: Apply a 3x3 median to the left disparity.
+        match_brightness: Give the right image the left's mean and standard deviation
+            before the intensity cost (a global gain and offset between the cameras).
+        border_cost: Cost of a disparity whose match lies outside the right image, in
+            units of the frame's mean best matching cost; the left border strip then
+            takes the disparity its neighbours carry in (extrapolation) instead of being
+            forced to one inside the image. 0: such disparities are never chosen.
+        border_extrapolation: How far past the image border an extrapolated disparity's
+            match may lie and still be published, as a fraction of disparity_range.
+        disp12_max_diff: Left-right check: largest difference in px between the left
+            disparity and the right view's at x - d (both from the same volume); <= 0
+            disables it (stereo_image_proc's name and rule).
+        speckle_size: Largest area in px of a disparity region that is removed as a
+            speckle (0 disables; stereo_image_proc's name).
+        speckle_range: Largest step in px between neighbours of one region.
 
-    The defaults (census 5x5 plus Birchfield-Tomasi, adaptive P2) were chosen on simulator
-    scenes of seeds 101, 202 and 303, not on the bundled bags the README's figures use.
+    The defaults were chosen on the simulator scenes and on the two Middlebury 2003 pairs
+    together (README, "Accuracy on real pairs"): census 5x5 plus Birchfield-Tomasi on
+    brightness-matched images, P2 adapted strongly to intensity edges.
     """
 
     min_disparity: int = 0
@@ -72,11 +95,17 @@ class SgmParams:
     intensity_truncation: int = 30
     P1: int = 18
     P2: int = 220
-    p2_adaptive_scale: float = 20.0
+    p2_adaptive_scale: float = 5.0
     paths: int = 8
-    uniqueness_ratio: float = 20.0
+    uniqueness_ratio: float = 10.0
     subpixel: str = 'parabola'
     median_filter: bool = False
+    match_brightness: bool = True
+    border_cost: float = 3.5
+    border_extrapolation: float = 0.25
+    disp12_max_diff: float = 2.0
+    speckle_size: int = 100
+    speckle_range: float = 2.0
 
     def validate(self, width: int | None = None) -> SgmParams:
         """Check every field (and the range against ``width``); returns self.
@@ -120,6 +149,14 @@ class SgmParams:
             raise bad('uniqueness_ratio', 'must be in [0, 100)')
         if self.subpixel not in SUBPIXEL_MODES:
             raise bad('subpixel', f'must be one of {", ".join(SUBPIXEL_MODES)}')
+        if not 0 <= self.border_cost <= 100:
+            raise bad('border_cost', 'must be in [0, 100]')
+        if not 0 <= self.border_extrapolation <= 1:
+            raise bad('border_extrapolation', 'must be in [0, 1]')
+        if self.speckle_size < 0:
+            raise bad('speckle_size', 'must be >= 0')
+        if self.speckle_range < 0:
+            raise bad('speckle_range', 'must be >= 0')
         if width is not None and self.disparity_range >= width:
             raise bad('disparity_range', f'is not smaller than the image width {width}')
         if width is not None and not -width < self.min_disparity < width:
@@ -158,6 +195,8 @@ class SgmMatcher:
         self._buf: dict[str, Any] = {}
         self._kept_total = False
         self.allocations = 0
+        #: The out-of-image cost the last match used (0: none, extrapolation off).
+        self.border_cost = 0
 
     def set_params(self, params: SgmParams) -> None:
         """Use ``params`` from the next frame on (validated now)."""
@@ -219,8 +258,15 @@ class SgmMatcher:
             left, right, min_disparity=p.min_disparity, disparity_range=p.disparity_range,
             census_window=(p.census_height, p.census_width), census_weight=p.census_weight,
             intensity_weight=p.intensity_weight, intensity_cost=p.intensity_cost,
-            intensity_truncation=p.intensity_truncation, out=b['cost'],
-            census_buffers=b['census'])
+            intensity_truncation=p.intensity_truncation, match_brightness=p.match_brightness,
+            out=b['cost'], census_buffers=b['census'])
+        extrapolate = p.border_cost > 0
+        if extrapolate:
+            self.border_cost = min(254, max(1, round(
+                p.border_cost * mean_best_cost(cost, p.min_disparity))))
+            fill_outside(cost, p.min_disparity, self.border_cost)
+        else:
+            self.border_cost = 0
         lb0, lb1, lb2 = b['rings']
         chunks = CHUNKS_PER_THREAD * numba.get_num_threads()
         single_pass = p.paths in SINGLE_PASS
@@ -236,9 +282,15 @@ class SgmMatcher:
             self._table, lb0, lb1, lb2, b['mbuf'], int(p.min_disparity),
             float(p.uniqueness_ratio), SUBPIXEL_MODES[p.subpixel], total, left_to_right,
             right_to_left, b['keys'], b['disparity'], b['disparity_right'], b['ratio'],
-            keep_total, chunks, single_pass)
+            keep_total, chunks, single_pass, extrapolate)
         if p.median_filter:
             _median3(b['disparity'], p.min_disparity)
+        check_disparity(b['disparity'], b['disparity_right'], max_diff=p.disp12_max_diff,
+                        max_outside=p.border_extrapolation * p.disparity_range)
+        if p.speckle_size > 0:
+            speckles = remove_speckles(b['disparity'], max_size=p.speckle_size,
+                                       max_diff=p.speckle_range)
+            b['disparity'][speckles] = np.nan
         return SgmResult(b['disparity'], b['disparity_right'], b['ratio'])
 
     @property

@@ -199,7 +199,7 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
                              total: U16, left_to_right: U16, right_to_left: U16,
                              keys: NDArray[np.uint32], disparity: F32, disparity_right: F32,
                              ratio: F32, store_total: bool, chunks: int,
-                             single_pass: bool) -> None:
+                             single_pass: bool, extrapolate: bool) -> None:
     """The rest of SGM, one row at a time from the bottom up, without a second volume pass.
 
     For each row: (1) the upward paths (the downward ones mirrored) are added to the
@@ -234,6 +234,11 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
         store_total: Write the full sum back into ``partial``.
         chunks: Pieces each row is split into for the threads.
         single_pass: Top down, the directions unmirrored, no ``partial`` (see above).
+        extrapolate: Select the left disparity over every disparity, also those whose
+            right pixel is outside the image (their cells then hold a neutral cost, see
+            ``cost.fill_outside``): the left border strip takes the disparity its
+            neighbours' paths carry in. Otherwise only in-image disparities are candidates.
+            The right view always uses in-image cells only.
     """
     h, w, n = cost.shape
     ndir = dxs.shape[0]
@@ -279,17 +284,18 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
                 rtl = right_to_left[pair, x]
                 k_lo = max(0, x - min_disparity - (w - 1))
                 k_hi = min(n - 1, x - min_disparity)
-                if k_lo == 0 and k_hi == n - 1:  # every disparity in the image: one pass
+                sel_lo, sel_hi = (0, n - 1) if extrapolate else (k_lo, k_hi)
+                if sel_lo == 0 and sel_hi == n - 1:  # every disparity a candidate: one pass
                     key = _add_rows_keyed_min(tot, ltr, rtl)
                 else:
                     for d in range(n):
                         tot[d] += ltr[d] + rtl[d]
-                    key = _keyed_min(tot, k_lo, k_hi) if k_lo <= k_hi else 0
+                    key = _keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
                 if store_total:
                     part = partial[y, x]
                     for d in range(n):
                         part[d] = tot[d]
-                k, r = select_pixel(tot, key, k_lo, k_hi, subpixel, uniqueness)
+                k, r = select_pixel(tot, key, sel_lo, sel_hi, subpixel, uniqueness)
                 disparity[y, x] = min_disparity + k
                 ratio[y, x] = r
                 if k_lo <= k_hi:
@@ -314,14 +320,15 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
 
 # --------------------------------------------------------------------- references
 def select_reference(total: NDArray[np.integer], *, min_disparity: int, uniqueness: float,
-                     subpixel: str) -> tuple[F32, F32, F32]:
+                     subpixel: str, extrapolate: bool = False) -> tuple[F32, F32, F32]:
     """Plain numpy selection from a full (H, W, D) total: (left, right, ratio)."""
     h, w, n = total.shape
     tot = total.astype(np.float64)
     ks = np.arange(n)
     xs = np.arange(w)
     xr_of = xs[:, None] - (min_disparity + ks)[None, :]  # (W, D) right pixel of (x, k)
-    valid = (xr_of >= 0) & (xr_of < w)
+    inside = (xr_of >= 0) & (xr_of < w)
+    valid = np.ones_like(inside) if extrapolate else inside
     masked = np.where(valid[None], tot, np.inf)
     kbest = np.argmin(masked, axis=2)
     best = np.take_along_axis(masked, kbest[..., None], axis=2)[..., 0]
