@@ -6,10 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from depth_nodes.core.confidence import ConfidenceTerms
 from depth_nodes.core.cross_check import (
     INVALID,
     MISMATCH,
     OCCLUDED,
+    OUTSIDE,
     SPECKLE,
     VALID,
     confidence_map,
@@ -18,6 +20,7 @@ from depth_nodes.core.cross_check import (
     fill_holes_reference,
     left_right_check,
     left_right_check_reference,
+    median_filter,
     remove_speckles,
 )
 
@@ -71,7 +74,10 @@ def test_left_right_labels_match_the_geometry() -> None:
     rest = np.ones((H, W), bool)
     rest[0, 0] = False
     rest[35, 100:104] = False
-    assert (check.labels[rest & occluded] == OCCLUDED).all()
+    beyond = (np.arange(W)[None, :] - left) < -0.5  # the partner is left of the image
+    assert beyond[:, :8].all()
+    assert (check.labels[rest & occluded & beyond] == OUTSIDE).all()
+    assert (check.labels[rest & occluded & ~beyond] == OCCLUDED).all()
     assert (check.labels[rest & ~occluded] == VALID).all()
     assert (check.difference[rest & ~occluded] == 0).all()
 
@@ -103,18 +109,23 @@ class TestKernelsAgainstReferences:
             np.testing.assert_array_equal(got.difference, diff)
 
     @pytest.mark.parametrize('seed', [0, 1, 2])
-    def test_fill(self, seed: int) -> None:
+    @pytest.mark.parametrize('mode', ['labels', 'background'])
+    def test_fill(self, seed: int, mode: str) -> None:
         rng = np.random.default_rng(seed)
         disp = rng.uniform(0, 30, (19, 31)).astype(np.float32)
         labels = rng.choice(np.array([VALID, INVALID, OCCLUDED, MISMATCH, SPECKLE], np.uint8),
                             disp.shape, p=[0.5, 0.1, 0.15, 0.15, 0.1])
         labels[3, :] = OCCLUDED  # a row without any valid pixel
-        got, filled = fill_holes(disp, labels)
+        got, filled = fill_holes(disp, labels, mode=mode)
         valid = labels == VALID
-        expected = fill_holes_reference(disp, valid, labels)
+        expected = fill_holes_reference(disp, valid, labels, mode)
         np.testing.assert_array_equal(got, expected)
         np.testing.assert_array_equal(filled, ~valid & np.isfinite(expected))
-        assert np.isnan(got[labels == INVALID]).all()
+        if mode == 'labels':
+            assert np.isnan(got[labels == INVALID]).all()
+        else:  # every hole of a row with a kept pixel is filled
+            assert np.isfinite(got[np.arange(19) != 3]).all()
+            assert np.isnan(got[3]).all()
 
 
 def test_occlusions_fill_from_the_background() -> None:
@@ -141,6 +152,79 @@ def test_mismatches_fill_from_the_neighbourhood() -> None:
     estimate[33:36, 100:103] = 2.0  # too near: the right view at x - 2 sees the nearer wall
     labels = left_right_check(estimate, right, max_diff=1.0).labels
     assert (labels[33:36, 100:103] == OCCLUDED).all()  # the standard rule
+
+
+def test_background_mode_fills_every_hole_from_the_farther_side() -> None:
+    """A matcher that already left its occlusions and mismatches empty: 'background' fills
+    both with the wall's disparity, the mismatch included (its neighbours are wall too);
+    'labels' leaves pixels without an input disparity (INVALID) empty."""
+    left, right, occluded = scene()
+    estimate = left.copy()
+    estimate[occluded] = np.nan
+    estimate[33:36, 100:103] = np.nan
+    labels = left_right_check(estimate, right, max_diff=1.0).labels
+    filled, mask = fill_holes(estimate, labels, mode='background')
+    band = np.zeros((H, W), bool)
+    band[10:30, X0 - 12:X0] = True
+    np.testing.assert_array_equal(filled[band], BACK)
+    np.testing.assert_array_equal(filled[33:36, 100:103], BACK)
+    assert mask[band].all()
+    unfilled, mask = fill_holes(estimate, labels, mode='labels')
+    assert np.isnan(unfilled[band]).all()
+    assert not mask[band].any()
+    with pytest.raises(ValueError, match='mode must be one of'):
+        fill_holes(estimate, labels, mode='nearest')
+
+
+@pytest.mark.parametrize('size', [3, 5])
+def test_median_filter_keeps_holes_and_removes_outliers(size: int) -> None:
+    disp = np.full((20, 20), 10.0, np.float32)
+    disp[10, 10] = 30.0  # a lone outlier
+    disp[2:4, 2:4] = np.nan
+    out = median_filter(disp, size)
+    assert out[10, 10] == 10.0
+    assert np.isnan(out[2:4, 2:4]).all()
+    assert np.isfinite(out[~np.isnan(disp)]).all()
+    np.testing.assert_array_equal(median_filter(np.full((4, 4), np.nan, np.float32), size),
+                                  np.full((4, 4), np.nan, np.float32))
+    with pytest.raises(ValueError, match='size must be 3 or 5'):
+        median_filter(disp, 7)
+
+
+def test_extrapolated_pixels_are_kept_and_ranked_by_distance() -> None:
+    """The left border strip: pixels whose partner lies past the right image's left edge
+    (the matcher extrapolated them) are kept with keep_outside, dropped without, and their
+    confidence falls with the distance past the border."""
+    left, right, _ = scene()
+    ratio = np.full(left.shape, 0.2, np.float32)
+    kept = cross_check(left, right, ratio, speckle_size=0)
+    strip = np.zeros((H, W), bool)
+    strip[:, :8] = True
+    assert (kept.labels[strip] == OUTSIDE).all()
+    assert np.isfinite(kept.disparity[strip]).all()
+    conf = kept.confidence[20, :8]  # partner 8 - x px past the border
+    assert (np.diff(conf) > 0).all()
+    assert conf[-1] < kept.confidence[20, 30]
+    dropped = cross_check(left, right, ratio, speckle_size=0, keep_outside=False)
+    assert np.isnan(dropped.disparity[strip]).all()
+
+
+def test_confidence_terms_lower_edges_and_holes() -> None:
+    """Support: a pixel beside a hole is less confident than one in the open; smoothness:
+    a pixel at a depth edge less than one on a flat surface."""
+    disp = np.full((30, 30), 10.0, np.float32)
+    disp[:, 15:] = 20.0
+    valid = np.ones(disp.shape, bool)
+    valid[5:10, 5:10] = False
+    ratio = np.full(disp.shape, 0.2, np.float32)
+    diff = np.zeros_like(disp)
+    terms = ConfidenceTerms(support_window=5, smoothness=1.0, outside_scale=0.0)
+    conf = confidence_map(ratio, diff, valid, window=1, disparity=disp, terms=terms)
+    plain = confidence_map(ratio, diff, valid, window=1)
+    assert conf[20, 5] == pytest.approx(plain[20, 5])  # open, flat: no term lowers it
+    assert conf[7, 11] < conf[20, 5]  # beside the hole
+    assert conf[20, 14] < conf[20, 5]  # at the depth edge
+    assert (conf[~valid] == 0).all()
 
 
 def test_speckles_are_removed_and_regions_kept() -> None:
@@ -218,7 +302,10 @@ def test_cross_check_on_a_noisy_estimate() -> None:
     estimate[occluded] = FRONT
     estimate[33:36, 100:103] = 14.0
     ratio = rng.uniform(0.0, 0.5, left.shape).astype(np.float32)
-    result = cross_check(estimate, right, ratio, speckle_size=20, speckle_range=1.0)
+    # the foreground's 20 px in the wall's border strip point past the right image: an
+    # extrapolation claim, dropped here as the occlusion it is
+    result = cross_check(estimate, right, ratio, speckle_size=20, speckle_range=1.0,
+                         keep_outside=False)
     kept = np.isfinite(result.disparity)
     assert not kept[occluded].any()
     assert not kept[33:36, 100:103].any()
@@ -228,7 +315,7 @@ def test_cross_check_on_a_noisy_estimate() -> None:
     assert (result.confidence[kept] > 0).all()
     assert not result.filled.any()
     filled = cross_check(estimate, right, ratio, speckle_size=20, speckle_range=1.0,
-                         fill=True)
+                         fill=True, keep_outside=False)
     assert np.isfinite(filled.disparity[10:30, X0 - 12:X0]).all()
     assert (filled.confidence[filled.filled] <= 0.1).all()
     assert np.abs(filled.disparity[10:30, X0 - 12:X0] - BACK).max() < 1.0

@@ -9,14 +9,17 @@ ApproximateTime policy). Publishes, with the left disparity's header:
 * ``disparity_checked``: DisparityImage with the input's ``f``, ``t``, ``min_disparity``,
   ``max_disparity``, ``delta_d`` and ``valid_window``; pixels that fail the left-right
   check or belong to a speckle are invalid (stored below ``min_disparity``), unless
-  ``fill_holes`` fills them.
-* ``confidence``: 32FC1 in [0, 1], same size and header: the pooled cost distinctiveness
-  times the left-right agreement, 0 on invalid pixels, low on filled ones.
+  ``fill_holes`` fills them (``fill_mode``); ``median_size`` smooths the result. A pixel
+  whose match lies outside the right image (the matcher extrapolated it) is kept with a
+  confidence that falls with the distance (``keep_extrapolated``).
+* ``confidence``: 32FC1 in [0, 1], same size and header (:mod:`depth_nodes.core.confidence`):
+  pooled cost distinctiveness, left-right agreement, support and smoothness; 0 on invalid
+  pixels, low on filled ones.
 
 The algorithm lives in :mod:`depth_nodes.core.cross_check`. Parameters (all but the
 synchronisation ones change at runtime and apply from the next frame): ``disp12_max_diff``,
-``speckle_size``, ``speckle_range``, ``fill_holes``, ``confidence_window``,
-``filled_confidence``.
+``speckle_size``, ``speckle_range``, ``fill_holes``, ``fill_mode``, ``median_size``,
+``keep_extrapolated``, ``confidence_window``, ``filled_confidence``.
 
 Frames without output are counted and logged with a reason: ``disparity_encoding`` (a
 DisparityImage not 32FC1), ``unsupported_encoding`` (cost_ratio not 32FC1),
@@ -34,13 +37,19 @@ import numpy as np
 from sensor_msgs.msg import Image
 from stereo_msgs.msg import DisparityImage
 
-from depth_nodes.core.cross_check import cross_check
+from depth_nodes.core.cross_check import FILL_MODES, cross_check
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 from depth_nodes.ros.workers import use_threads
+
+
+def _one_of(choices: tuple[Any, ...]) -> Any:
+    def check(value: Any) -> str | None:
+        return None if value in choices else f'must be one of {", ".join(map(str, choices))}'
+    return check
 
 
 def _odd(value: int) -> str | None:
@@ -71,8 +80,17 @@ PARAMETERS = [
     ParamSpec('speckle_range', 2.0, 'Largest disparity step in px within one region of '
               'the speckle filter, in [0, 64]; integer or double', dynamic_typing=True,
               check=_pixels(0.0, 64.0)),
-    ParamSpec('fill_holes', False, 'Fill occlusions from the background and mismatches '
-              'from their neighbourhood (filled pixels get low confidence)'),
+    ParamSpec('fill_holes', False, 'Fill the holes (filled pixels get low confidence); '
+              'see fill_mode'),
+    ParamSpec('fill_mode', 'background', 'background: every hole takes the farther of its '
+              'nearest kept neighbours on the row; labels: occlusions do, mismatches take '
+              'the median of 8 directions, pixels without input stay empty',
+              check=_one_of(FILL_MODES)),
+    ParamSpec('median_size', 0, 'Median of the output: 0 (off), 3 or 5',
+              0, 5, check=_one_of((0, 3, 5))),
+    ParamSpec('keep_extrapolated', True, 'Keep pixels whose match lies outside the right '
+              'image (the matcher\'s extrapolated border strip), at a confidence that '
+              'falls with the distance; false drops them as occlusions'),
     ParamSpec('confidence_window', 9, 'Odd side of the box the cost measure is pooled '
               'over (1: no pooling)', 1, 31, check=_odd),
     ParamSpec('filled_confidence', 0.1, 'Confidence factor of filled pixels', 0.0, 1.0),
@@ -140,6 +158,8 @@ class CrossCheckNode(DepthNode):
             left.disparity, right.disparity, ratio,
             disp12_max_diff=values['disp12_max_diff'], speckle_size=values['speckle_size'],
             speckle_range=values['speckle_range'], fill=values['fill_holes'],
+            fill_mode=values['fill_mode'], median_size=values['median_size'],
+            keep_outside=values['keep_extrapolated'],
             confidence_window=values['confidence_window'],
             filled_confidence=values['filled_confidence'])
         header = disparity_msg.header

@@ -1,0 +1,161 @@
+"""A confidence map for a checked disparity: how likely each pixel's value is right.
+
+The map is the product of terms in [0, 1], each from a signal that separates right from
+wrong disparities on the simulator scenes and on the Middlebury pairs (README, "Accuracy
+on real pairs"):
+
+* distinctiveness: ``1 - cost_ratio`` (best / second-best aggregated cost of the winner,
+  from the matcher), averaged over a ``window`` x ``window`` box;
+* left-right agreement: ``1 / (1 + (diff / max_diff)^2)`` of the left-right difference
+  (no difference, a NaN, counts as no agreement; see the extrapolation term);
+* support (``terms.support_window``): the fraction of kept pixels around the pixel. The
+  wrong disparities a check lets through sit mostly beside the holes it makes: at
+  occlusion edges, where a nearer object's disparity spills over the background;
+* smoothness (``terms.smoothness``, px): ``1 / (1 + (|d - mean_5x5(d)| / s)^2)`` of the
+  output disparity: outliers and depth edges;
+* extrapolation (``terms.outside_scale``, px): a pixel whose partner ``x - d`` lies ``o``
+  px outside the right image has no left-right difference; it gets ``1 / (1 + o /
+  scale)`` instead of the agreement term (the left border strip, where the matcher
+  extrapolated from the neighbours).
+
+Filled pixels get ``filled_confidence`` times the distinctiveness and the terms that do not
+need a left-right difference; pixels without a disparity get 0. Misuse raises
+``ValueError`` naming the argument.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from depth_nodes.core._validate import float_map, non_negative
+
+__all__ = ['DEFAULT_TERMS', 'PLAIN_TERMS', 'ConfidenceTerms', 'confidence_map']
+
+F32 = NDArray[np.float32]
+#: Box of the smoothness term's local mean.
+SMOOTHNESS_WINDOW = 5
+
+
+@dataclass(frozen=True)
+class ConfidenceTerms:
+    """The optional terms of :func:`confidence_map` (see the module notes).
+
+    Attributes:
+        support_window: Odd side of the box of the support term (1: off).
+        smoothness: Deviation scale in px of the smoothness term (0: off).
+        outside_scale: Distance scale in px of the extrapolation term (0: off; a pixel
+            with no left-right difference then gets no agreement).
+    """
+
+    support_window: int = 9
+    smoothness: float = 1.0
+    outside_scale: float = 4.0
+
+
+#: What :func:`~depth_nodes.core.cross_check.cross_check` uses.
+DEFAULT_TERMS = ConfidenceTerms()
+#: Distinctiveness and agreement only.
+PLAIN_TERMS = ConfidenceTerms(support_window=1, smoothness=0.0, outside_scale=0.0)
+
+
+def _odd_window(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or (
+            value < 1 or value % 2 == 0):
+        raise ValueError(f'{name} must be an odd int >= 1, got {value!r}')
+    return int(value)
+
+
+def _box(values: F32, window: int) -> F32:
+    return np.asarray(cv2.blur(values, (window, window), borderType=cv2.BORDER_REFLECT),
+                      dtype=np.float32)
+
+
+def _outside_distance(disparity: F32) -> F32:
+    """How far in px the partner ``x - d`` of each pixel lies outside the image (0 inside
+    or where the disparity is NaN)."""
+    w = disparity.shape[1]
+    xs = np.arange(w, dtype=np.float32)[None, :]
+    with np.errstate(invalid='ignore'):
+        xr = np.floor(xs - disparity + 0.5)
+        beyond = np.maximum(-xr, xr - (w - 1))
+    distance: F32 = np.nan_to_num(np.maximum(beyond, 0.0), nan=0.0).astype(np.float32)
+    return distance
+
+
+def _smoothness(disparity: F32, scale: float) -> F32:
+    finite = np.isfinite(disparity)
+    values = np.where(finite, disparity, 0.0).astype(np.float32)
+    count = _box(finite.astype(np.float32), SMOOTHNESS_WINDOW)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        mean = _box(values, SMOOTHNESS_WINDOW) / count
+        deviation = np.where(finite & (count > 0), np.abs(disparity - mean), 0.0)
+    return (1.0 / (1.0 + np.square(deviation / scale))).astype(np.float32)
+
+
+def confidence_map(cost_ratio: Any, difference: Any, valid: Any, *, window: int = 5,
+                   max_diff: float = 1.0, filled: Any = None,
+                   filled_confidence: float = 0.1, disparity: Any = None,
+                   terms: ConfidenceTerms = PLAIN_TERMS) -> F32:
+    """Confidence in [0, 1] of every pixel (see the module notes).
+
+    Args:
+        cost_ratio: (H, W) float best / second-best cost in [0, 1] (NaN counts as 1).
+        difference: (H, W) float left-right difference in px (NaN: no partner).
+        valid: (H, W) bool, the pixels whose disparity is kept (others get 0).
+        window: Odd side of the box the distinctiveness is averaged over (1: no pooling).
+        max_diff: The difference scale in px: agreement 1/2 at ``max_diff`` (> 0).
+        filled: Optional (H, W) bool of filled pixels: they get ``filled_confidence`` x
+            the terms that need no left-right difference.
+        filled_confidence: Factor in [0, 1] for filled pixels.
+        disparity: Optional (H, W) float output disparity, needed by the smoothness and
+            extrapolation terms (they are skipped without it).
+        terms: Which optional terms to apply (:data:`PLAIN_TERMS`: none).
+
+    Returns:
+        (H, W) float32 confidence, 0 where neither valid nor filled.
+
+    Raises:
+        ValueError: Bad shapes or dtypes, even windows, non-positive ``max_diff``.
+    """
+    ratio = float_map('cost_ratio', cost_ratio)
+    diff = float_map('difference', difference, ratio.shape)
+    keep = np.asarray(valid)
+    if keep.dtype != np.bool_ or keep.shape != ratio.shape:
+        raise ValueError(f'valid must be a bool array of shape {ratio.shape}')
+    window = _odd_window('window', window)
+    support_window = _odd_window('support_window', terms.support_window)
+    scale = non_negative('max_diff', max_diff)
+    if scale == 0:
+        raise ValueError('max_diff must be > 0 for the confidence')
+    factor = non_negative('filled_confidence', filled_confidence)
+    if factor > 1:
+        raise ValueError(f'filled_confidence must be in [0, 1], got {filled_confidence!r}')
+    smooth_scale = non_negative('smoothness', terms.smoothness)
+    outside_scale = non_negative('outside_scale', terms.outside_scale)
+    distinct = (1.0 - np.clip(np.nan_to_num(ratio, nan=1.0), 0.0, 1.0)).astype(np.float32)
+    if window > 1:
+        distinct = _box(distinct, window)
+    with np.errstate(invalid='ignore'):
+        agree = 1.0 / (1.0 + np.square(np.nan_to_num(diff, nan=np.inf) / scale))
+    shared = distinct
+    if support_window > 1:
+        shared = shared * _box(keep.astype(np.float32), support_window)
+    if disparity is not None:
+        out = float_map('disparity', disparity, ratio.shape)
+        if smooth_scale > 0:
+            shared = shared * _smoothness(out, smooth_scale)
+        if outside_scale > 0:
+            outside = _outside_distance(out)
+            extrapolated = np.isnan(diff) & (outside > 0)
+            agree = np.where(extrapolated, 1.0 / (1.0 + outside / outside_scale), agree)
+    conf = np.where(keep, shared * agree, 0.0)
+    if filled is not None:
+        fill = np.asarray(filled, dtype=np.bool_)
+        conf = np.where(fill & ~keep, factor * shared, conf)
+    result: F32 = np.clip(conf, 0.0, 1.0).astype(np.float32)
+    return result
