@@ -39,3 +39,7 @@ class BagError(DepthNodesError):
 
 class ConfigError(DepthNodesError):
     """An invalid parameter value or graph configuration."""
+
+
+class InputFileError(DepthNodesError):
+    """An input file (image, ground truth, mask) that is missing or cannot be used."""

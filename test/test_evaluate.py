@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -94,18 +95,35 @@ def test_scores_match_hand_computed_values(tmp_path: Path) -> None:
     assert depth.density == pytest.approx(1 - invalid.sum() / n)
     assert 'depth /stereo/depth vs ground truth: mean |dZ| 12.5 mm' in report.format()
     assert report.size == (W, H)
-    # the OpenCV reference ran on the same rectified pair and does well on this easy plane
-    for label in ('opencv SGBM MODE_SGBM, stereo_image_proc defaults',
-                  'opencv SGBM MODE_HH, stereo_image_proc defaults',
-                  'opencv SGBM MODE_SGBM, tuned P1/P2', 'opencv SGBM MODE_HH, tuned P1/P2'):
-        assert rows[label].bad_sparse_nonocc < 0.05, label
-        assert rows[label].density > 0.5, label
+    # bad-1: the bad pixels are off by 5 px, the others exact
+    assert ours.bad1_dense == pytest.approx(ours.bad_dense)
+    assert ours.bad1_dense_nonocc == pytest.approx(ours.bad_dense_nonocc)
+    assert ours.bad1_sparse_nonocc == pytest.approx(
+        (bad & visible & ~invalid).sum() / (visible & ~invalid).sum())
+    assert ours.density_nonocc == pytest.approx((visible & ~invalid).sum() / visible.sum())
+    assert report.nonocc_source == '/stereo/left/occlusion_gt'
+    assert report.nonocc_fraction == pytest.approx(visible.mean())
+    # the OpenCV reference ran on the same rectified pair and does well on this easy plane:
+    # stereo_image_proc's defaults, every setting of the grid, and the grid's best
+    assert len(report.grid) == 18
+    for row in [rows['opencv SGBM MODE_SGBM, stereo_image_proc defaults'], *report.grid]:
+        assert row.bad_sparse_nonocc < 0.05, row.method
+        assert row.density > 0.5, row.method
+    best = report.opencv_best('bad_dense')
+    assert best.bad_dense == min(r.bad_dense for r in report.grid)
+    assert rows[f'opencv best of 18 by bad-2: {best.method.removeprefix("opencv ")}'] == \
+        dataclasses.replace(best, method=f'opencv best of 18 by bad-2: '
+                                         f'{best.method.removeprefix("opencv ")}')
+    text = report.format()
+    assert 'opencv SGBM MODE_SGBM, stereo_image_proc defaults' in text
+    assert 'opencv best of 18 by nonocc bad-1:' in text
+    assert best.method not in text  # grid rows only with grid=True
+    assert best.method in report.format(grid=True)
     pngs = sorted(p.name for p in (tmp_path / 'png').iterdir())
-    # ground truth, ours and four OpenCV baselines; an error map for all but the truth
-    assert len([p for p in pngs if p.endswith('_disparity.png')]) == N_FRAMES * 6
-    assert len([p for p in pngs if p.endswith('_error.png')]) == N_FRAMES * 5
+    # ground truth, ours and stereo_image_proc's defaults; an error map for all but the truth
+    assert len([p for p in pngs if p.endswith('_disparity.png')]) == N_FRAMES * 3
+    assert len([p for p in pngs if p.endswith('_error.png')]) == N_FRAMES * 2
     assert len([p for p in pngs if p.endswith('_confidence.png')]) == N_FRAMES
-    assert 'opencv SGBM MODE_SGBM, stereo_image_proc defaults' in report.format()
 
 
 def test_missing_estimate_frames_are_counted_as_invalid(tmp_path: Path) -> None:
@@ -148,3 +166,45 @@ def test_baseline_needs_images(tmp_path: Path) -> None:
     with pytest.raises(BagError, match='cannot run the OpenCV baseline'):
         evaluate_bag(tmp_path / 'bag')
     assert evaluate_bag(tmp_path / 'bag', baselines=False).rows == []
+
+
+def test_confidence_is_scored_over_the_raw_pixels_and_its_own(tmp_path: Path) -> None:
+    """A raw disparity with holes and 10 % wrong pixels, its checked version dense: the
+    confidence's first AUC ranks the raw errors over the raw pixels only (a dropped pixel
+    is not an error ranked last), the second the checked output's errors over its pixels."""
+    rng = np.random.default_rng(5)
+    gt = np.full((H, W), D, np.float32)
+    raw = gt.copy()
+    wrong = rng.random((H, W)) < 0.1
+    raw[wrong] += 4.0
+    holes = ~wrong & (rng.random((H, W)) < 0.2)
+    raw[holes] = np.nan
+    checked = gt.copy()
+    filled_wrong = holes & (rng.random((H, W)) < 0.5)  # half the filled pixels are wrong
+    checked[filled_wrong] += 3.0
+    checked[wrong] += 4.0
+    # confident where the raw pixel is right; the wrong raw pixels least confident
+    conf = np.where(wrong, 0.05, np.where(holes, 0.1, 0.9)).astype(np.float32)
+    with BagWriter(tmp_path / 'bag') as writer:
+        h = _header(0)
+        common = {'focal': 1.0, 'baseline': 1.0, 'min_disparity': 0.0, 'max_disparity': 15.0,
+                  'delta_d': 1 / 32}
+        writer.write('/stereo/left/disparity_gt', build_disparity(gt, h, **common), 1)
+        writer.write('/stereo/disparity', build_disparity(raw, h, **common), 1)
+        writer.write('/stereo/disparity_checked', build_disparity(checked, h, **common), 1)
+        writer.write('/stereo/confidence', array_to_image(conf, '32FC1', h), 1)
+    report = evaluate_bag(tmp_path / 'bag', baselines=False)
+    row = report.row('/stereo/disparity_checked')
+    assert report.row('/stereo/disparity').auc_ratio is None
+    assert report.nonocc_source is None
+    assert report.nonocc_fraction == 1.0
+    # over the raw pixels the wrong ones are ranked last: optimal
+    assert row.auc_ratio == pytest.approx(1.0, abs=0.01)
+    # over its own pixels (all of them) half the filled ones are wrong at confidence 0.1,
+    # ranked among right ones: no longer optimal
+    assert row.auc_ratio_own is not None
+    assert row.auc_ratio_own > 1.05
+    with pytest.raises(KeyError):
+        report.row('/stereo/nothing')
+    with pytest.raises(ValueError, match='grid did not run'):
+        report.opencv_best()

@@ -66,6 +66,37 @@ TUNED_SGBM = SgbmSettings(
 
 BASELINES = (STEREO_IMAGE_PROC_DEFAULTS, STEREO_IMAGE_PROC_DEFAULTS_HH, TUNED_SGBM, TUNED_HH)
 
+#: The three tunings of :data:`SGBM_GRID`: (name, uniqueness_ratio, speckle_size,
+#: speckle_range, disp12_max_diff, prefilter_cap).
+GRID_TUNINGS = (
+    ('sip filters', 15, 100, 4, 0, 31),
+    ('tuned', 10, 100, 2, 1, 63),
+    ('loose', 5, 0, 0, -1, 63),
+)
+
+
+def _grid() -> tuple[SgbmSettings, ...]:
+    settings = []
+    for mode, mode_name in ((cv2.STEREO_SGBM_MODE_SGBM, 'MODE_SGBM'),
+                            (cv2.STEREO_SGBM_MODE_HH, 'MODE_HH')):
+        for window in (3, 5, 7):
+            for name, uniqueness, size, span, lr, cap in GRID_TUNINGS:
+                settings.append(SgbmSettings(
+                    f'opencv {mode_name} w{window} {name}', mode=mode,
+                    correlation_window_size=window, P1=8 * window * window,
+                    P2=32 * window * window, uniqueness_ratio=uniqueness, speckle_size=size,
+                    speckle_range=span, disp12_max_diff=lr, prefilter_cap=cap))
+    return tuple(settings)
+
+
+#: 18 StereoSGBM settings to take OpenCV's best from: MODE_SGBM (5 directions) and MODE_HH
+#: (8) x block sizes 3, 5, 7 (P1 = 8 w^2, P2 = 32 w^2, OpenCV's documented rule for a
+#: one-channel image) x three tunings of its filters (:data:`GRID_TUNINGS`):
+#: stereo_image_proc's (uniqueness 15, speckles 100 / 4 px, no left-right check,
+#: prefilter cap 31), the usual tuning (10, 100 / 2 px, left-right 1 px, 63) and a loose
+#: one (5, no speckle filter, no left-right check, 63).
+SGBM_GRID = _grid()
+
 
 def opencv_range(min_disparity: int, max_disparity: float) -> int:
     """The smallest multiple of 16 that covers [min_disparity, max_disparity]."""

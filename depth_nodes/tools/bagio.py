@@ -176,17 +176,26 @@ class BagWriter:
         if self.path.exists():
             if not overwrite:
                 raise BagError(f'output bag exists already: {self.path} (use --force)')
-            if not (self.path / 'metadata.yaml').is_file() and any(self.path.iterdir()):
+            if not self.path.is_dir() or (not (self.path / 'metadata.yaml').is_file()
+                                          and any(self.path.iterdir())):
                 raise BagError(f'refusing to overwrite {self.path}: not a bag folder')
             _remove_tree(self.path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._writer = Writer(self.path, version=Writer.VERSION_LATEST,
-                              storage_plugin=StoragePlugin.MCAP)
-        if compress:
-            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        self._connections: dict[str, Any] = {}
-        self.counts: Counter[str] = Counter()
-        self._writer.open()
+        existing = next((a for a in self.path.parents if a.exists()), None)
+        if existing is not None and not existing.is_dir():
+            raise BagError(f'cannot write the bag {self.path}: {existing} is a file, not a '
+                           'folder')
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = Writer(self.path, version=Writer.VERSION_LATEST,
+                                  storage_plugin=StoragePlugin.MCAP)
+            if compress:
+                self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            self._connections: dict[str, Any] = {}
+            self.counts: Counter[str] = Counter()
+            self._writer.open()
+        except OSError as exc:
+            raise BagError(f'cannot write the bag {self.path}: {exc.strerror or exc}'
+                           f'{" (" + str(exc.filename) + ")" if exc.filename else ""}') from None
         if compress and compression_level is not None:
             _set_chunk_compression_level(self._writer, compression_level)
 

@@ -86,6 +86,25 @@ def _cmd_process(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_import_pair(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.pairs import PairSource, import_pair
+
+    def path(value: str | None) -> Path | None:
+        return Path(value) if value else None
+
+    source = PairSource(
+        left=Path(args.left), right=Path(args.right), ground_truth=path(args.gt),
+        gt_format=args.gt_format, gt_scale=args.gt_scale,
+        ground_truth_right=path(args.gt_right), nonoccluded_mask=path(args.nonocc),
+        calibration=(Path(args.calibration[0]), Path(args.calibration[1]))
+        if args.calibration else None,
+        focal=args.focal, baseline=args.baseline, namespace=args.namespace, mono=args.mono,
+        frames=args.frames)
+    summary = import_pair(source, args.out_bag, overwrite=args.force)
+    print(summary.format(Path(args.out_bag)))
+    return 0
+
+
 def _cmd_pipeline(args: argparse.Namespace) -> int:
     from depth_nodes.tools.pipeline import run_pipeline
     from depth_nodes.tools.process import default_config_path
@@ -135,7 +154,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
     report = evaluate_bag(args.bag, threshold=args.threshold, baselines=not args.no_baseline,
                           previews=args.previews)
-    print(report.format())
+    print(report.format(grid=args.grid))
     if args.previews:
         print(f'previews written to {args.previews}')
     return 0
@@ -217,6 +236,44 @@ def build_parser() -> argparse.ArgumentParser:
     proc.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
     proc.set_defaults(func=_cmd_process)
 
+    imp = sub.add_parser(
+        'import-pair', help='a real image pair (and its ground truth) as a bag for process '
+        'and eval',
+        description='Write a stereo pair, and optionally its ground-truth disparity, into a '
+        'bag with the topics of the bundled ones, so `depth-nodes process` runs the graph on '
+        'it and `depth-nodes eval` scores the result. A rectified pair gets an identity '
+        'calibration; a raw one takes its two camera_info YAML files (--calibration), and '
+        'its ground truth must be in the rectified left frame.',
+        epilog='Example (Middlebury 2003, quarter size): depth-nodes import-pair im2.png '
+        'im6.png teddy_bag --gt disp2.pgm --gt-scale 4 --gt-right disp6.pgm')
+    imp.add_argument('left', help='left image (PNG, PPM, PGM, JPEG; 8-bit colour or grey, '
+                     '16-bit grey)')
+    imp.add_argument('right', help='right image, same size and type')
+    imp.add_argument('out_bag', help='bag folder to create')
+    imp.add_argument('--gt', help='ground-truth disparity of the left view')
+    imp.add_argument('--gt-format', default='auto', choices=('auto', 'scaled', 'kitti', 'pfm'),
+                     help='auto (default): pfm by extension, kitti for a 16-bit PNG without '
+                     '--gt-scale, scaled otherwise')
+    imp.add_argument('--gt-scale', type=float,
+                     help='stored value per px of disparity (Middlebury 2003 quarter size: 4, '
+                     '2001: 8; KITTI: 256)')
+    imp.add_argument('--gt-right', help='ground truth of the right view, same format: '
+                     'derives the non-occlusion mask')
+    imp.add_argument('--nonocc', help='non-occlusion mask image (nonzero = visible in both '
+                     'views), e.g. Middlebury nonocc.png or KITTI disp_noc')
+    imp.add_argument('--calibration', nargs=2, metavar=('LEFT.yaml', 'RIGHT.yaml'),
+                     help='camera_info YAML files of a raw (unrectified) pair')
+    imp.add_argument('--focal', type=float, default=0.0,
+                     help='rectified pair: focal length in px (default: the image width)')
+    imp.add_argument('--baseline', type=float, default=0.1,
+                     help='rectified pair: baseline in m (default 0.1)')
+    imp.add_argument('--namespace', default='/stereo', help='topic namespace (default /stereo)')
+    imp.add_argument('--mono', action='store_true', help='store colour images as mono8')
+    imp.add_argument('--frames', type=int, default=1,
+                     help='write the pair this many times, 0.1 s apart (default 1)')
+    imp.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
+    imp.set_defaults(func=_cmd_import_pair)
+
     pipe = sub.add_parser('pipeline', help='run every node of a graph in one process, live',
                           epilog='Anything after --ros-args goes to rclpy (e.g. '
                           '--ros-args --log-level debug).')
@@ -268,6 +325,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument('--threshold', type=float, default=2.0, help='N of bad-N (default 2)')
     ev.add_argument('--previews', help='write PNG previews into this folder')
     ev.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
+    ev.add_argument('--grid', action='store_true',
+                    help='also print every setting of the 18-setting OpenCV grid')
     ev.set_defaults(func=_cmd_eval)
 
     evsl = sub.add_parser('eval-sl',

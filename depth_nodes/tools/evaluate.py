@@ -1,16 +1,27 @@
 """`depth-nodes eval`: accuracy of a processed bag against its ground-truth topics.
 
 Every DisparityImage topic that is not ground truth is scored against
-``<ns>/left/disparity_gt`` frame by frame (matched by header stamp), over all pixels with
-ground truth and over the non-occluded ones (``<ns>/left/occlusion_gt`` == 0). A
-``<ns>/.../confidence`` image is scored by its sparsification AUC against the disparity in
-its namespace. OpenCV's StereoSGBM runs on the same rectified pair as reference: the
-pipeline's ``<ns>/left|right/image_rect`` when the bag has them, otherwise the raw images
-rectified with their CameraInfo.
+``<ns>/left/disparity_gt`` frame by frame (matched by header stamp): bad-1 and bad-N
+(default 2) over all pixels with ground truth and over the non-occluded ones
+(``<ns>/left/occlusion_gt`` == 0, when the bag has it), density and avgerr.
+
+A ``<ns>/confidence`` image belongs to the checked disparity of its namespace. Its
+sparsification AUC / optimum is reported twice: over the pixels the *raw* matcher
+(``<ns>/disparity``) estimated, ranking the raw matcher's errors (DESIGN.md's definition:
+a pixel the check dropped is not counted as an error ranked last, which would measure the
+check), and over the pixels its own disparity has, ranking that disparity's errors.
+
+OpenCV's StereoSGBM runs on the same rectified pair as reference, with stereo_image_proc's
+defaults and over an 18-setting grid (:data:`~depth_nodes.core.baseline.SGBM_GRID`) whose
+best setting by each headline figure is reported: the pipeline's
+``<ns>/left|right/image_rect`` when the bag has them, otherwise the raw images rectified
+with their CameraInfo.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +31,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.baseline import BASELINES, opencv_range, opencv_sgbm
+from depth_nodes.core.baseline import (
+    SGBM_GRID,
+    STEREO_IMAGE_PROC_DEFAULTS,
+    opencv_range,
+    opencv_sgbm,
+)
 from depth_nodes.core.metrics import (
     DepthScores,
     depth_errors,
@@ -46,7 +62,13 @@ Array = NDArray[Any]
 
 @dataclass
 class MethodScores:
-    """Accuracy of one method over every evaluated frame."""
+    """Accuracy of one method over every evaluated frame.
+
+    ``bad_*`` are at the report's threshold N (default 2 px), ``bad1_*`` at 1 px; ``dense``
+    counts a pixel without an estimate as bad, ``sparse`` scores estimated pixels only.
+    ``auc_ratio``: the confidence's AUC / optimum over the raw matcher's estimated pixels
+    and its errors; ``auc_ratio_own``: over the pixels of the disparity it belongs to.
+    """
 
     method: str
     frames: int
@@ -58,11 +80,21 @@ class MethodScores:
     bad_dense_nonocc: float
     bad_sparse_nonocc: float
     auc_ratio: float | None = None
+    bad1_dense: float = math.nan
+    bad1_sparse: float = math.nan
+    bad1_dense_nonocc: float = math.nan
+    bad1_sparse_nonocc: float = math.nan
+    density_nonocc: float = math.nan
+    auc_ratio_own: float | None = None
 
 
 @dataclass
 class EvalReport:
-    """The scores of every method, and the bag facts they were computed on."""
+    """The scores of every method, and the bag facts they were computed on.
+
+    ``rows`` hold the bag's disparities, OpenCV with stereo_image_proc's defaults and the
+    grid's best settings; ``grid`` every setting of the OpenCV grid.
+    """
 
     bag: str
     gt_topic: str
@@ -71,29 +103,42 @@ class EvalReport:
     gt_range: tuple[float, float]
     threshold: float
     rows: list[MethodScores] = field(default_factory=list)
+    grid: list[MethodScores] = field(default_factory=list)
+    #: What the non-occluded columns use: the occlusion topic, or None (all pixels).
+    nonocc_source: str | None = None
+    #: Fraction of ground-truth pixels that are non-occluded.
+    nonocc_fraction: float = 1.0
     #: Mean |image_rect - image_rect_gt| per side (grey levels, 16 px margin), when both exist.
     rectification_mad: dict[str, float] = field(default_factory=dict)
     #: Depth images (REP 118) scored against ``<ns>/left/depth_gt``, by topic.
     depth: dict[str, DepthScores] = field(default_factory=dict)
 
-    def format(self) -> str:
-        """The table printed by ``depth-nodes eval``."""
+    def format(self, *, grid: bool = False) -> str:
+        """The table printed by ``depth-nodes eval`` (every grid row with ``grid``)."""
         n = f'{self.threshold:g}'
-        head = (f'{"method":<50} {"bad-" + n + " dense":>12} {"sparse":>8} {"density":>8} '
-                f'{"avgerr":>7} {"nonocc dense":>13} {"sparse":>8} {"AUC/opt":>8}')
+        nonocc = (f'non-occluded: {self.nonocc_source} == 0 ({self.nonocc_fraction:.1%} of '
+                  'the ground-truth pixels)' if self.nonocc_source else
+                  'non-occluded: no occlusion topic, all ground-truth pixels')
+        head = (f'{"method":<58} {"density":>7} {"avgerr":>6} {"bad-1":>7} '
+                f'{"bad-" + n:>7} {"sparse":>7} | {"bad-1":>7} {"sparse":>7} '
+                f'{"bad-" + n:>7} | {"AUC/opt":>7} {"own":>5}')
+        over = (f'{"":<58} {"all ground-truth pixels":^39} | {"non-occluded":^23} | '
+                f'{"confidence":^13}')
         lines = [
             f'bag {self.bag}: {self.frames} frames {self.size[0]}x{self.size[1]}, '
             f'ground truth {self.gt_topic}, disparity {self.gt_range[0]:.1f}..'
-            f'{self.gt_range[1]:.1f} px',
-            head, '-' * len(head),
+            f'{self.gt_range[1]:.1f} px; {nonocc}',
+            over, head, '-' * len(head),
         ]
-        for r in self.rows:
-            auc = f'{r.auc_ratio:8.2f}' if r.auc_ratio is not None else f'{"-":>8}'
+        rows = self.rows + (self.grid if grid else [])
+        for r in rows:
+            auc = f'{r.auc_ratio:7.2f}' if r.auc_ratio is not None else f'{"-":>7}'
+            own = f'{r.auc_ratio_own:5.2f}' if r.auc_ratio_own is not None else f'{"-":>5}'
             missing = f'  ({r.missing_frames} frames missing)' if r.missing_frames else ''
             lines.append(
-                f'{r.method:<50} {r.bad_dense:12.4f} {r.bad_sparse:8.4f} {r.density:8.3f} '
-                f'{r.avgerr:7.3f} {r.bad_dense_nonocc:13.4f} {r.bad_sparse_nonocc:8.4f} '
-                f'{auc}{missing}'
+                f'{r.method[:58]:<58} {r.density:7.3f} {r.avgerr:6.3f} {r.bad1_dense:7.4f} '
+                f'{r.bad_dense:7.4f} {r.bad_sparse:7.4f} | {r.bad1_dense_nonocc:7.4f} '
+                f'{r.bad1_sparse_nonocc:7.4f} {r.bad_dense_nonocc:7.4f} | {auc} {own}{missing}'
             )
         for topic, d in sorted(self.depth.items()):
             lines.append(f'depth {topic} vs ground truth: mean |dZ| {d.mae * 1e3:.1f} mm, '
@@ -105,6 +150,27 @@ class EvalReport:
         if not self.rows:
             lines.append('(no disparity to score: nothing was published and no baseline ran)')
         return '\n'.join(lines)
+
+    def row(self, method: str) -> MethodScores:
+        """The row of ``method`` (a topic or an OpenCV label).
+
+        Raises:
+            KeyError: No such row.
+        """
+        for r in self.rows + self.grid:
+            if r.method == method:
+                return r
+        raise KeyError(method)
+
+    def opencv_best(self, key: str = 'bad_dense') -> MethodScores:
+        """The grid's best setting by ``key`` (a :class:`MethodScores` field, lower better).
+
+        Raises:
+            ValueError: The OpenCV grid did not run.
+        """
+        if not self.grid:
+            raise ValueError('the OpenCV grid did not run (baselines off)')
+        return min(self.grid, key=lambda r: getattr(r, key))
 
 
 def _stamp(msg: Any) -> int:
@@ -147,9 +213,11 @@ class _Accumulator:
         self.gt: list[Array] = []
         self.nonocc: list[Array] = []
         self.conf: list[Array] = []
+        self.raw: list[Array] = []
         self.missing = 0
 
-    def add(self, est: Array | None, gt: Array, nonocc: Array, conf: Array | None = None) -> None:
+    def add(self, est: Array | None, gt: Array, nonocc: Array, conf: Array | None = None,
+            raw: Array | None = None) -> None:
         if est is None:
             self.missing += 1
             est = np.full(gt.shape, np.nan, np.float32)
@@ -158,20 +226,32 @@ class _Accumulator:
         self.nonocc.append(nonocc)
         if conf is not None:
             self.conf.append(conf)
+            self.raw.append(est if raw is None else raw)
 
     def scores(self, method: str, threshold: float) -> MethodScores:
         # frames stacked vertically: the metrics are per pixel, so this pools all frames
         est, gt, nonocc = (np.concatenate(x) for x in (self.est, self.gt, self.nonocc))
         every = disparity_errors(est, gt, n=threshold)
         visible = disparity_errors(est, gt, valid_mask=nonocc, n=threshold)
-        auc = None
+        every1 = disparity_errors(est, gt, n=1.0)
+        visible1 = disparity_errors(est, gt, valid_mask=nonocc, n=1.0)
+        auc = auc_own = None
         if self.conf and len(self.conf) == len(self.est):
-            error = np.abs(est - gt)
-            auc = sparsification_auc(np.concatenate(self.conf), error,
-                                     valid_mask=np.isfinite(gt), n=threshold).ratio
+            conf = np.concatenate(self.conf)
+            raw = np.concatenate(self.raw)
+            has_gt = np.isfinite(gt)
+            auc = sparsification_auc(conf, np.abs(raw - gt),
+                                     valid_mask=has_gt & np.isfinite(raw), n=threshold).ratio
+            auc_own = sparsification_auc(conf, np.abs(est - gt),
+                                         valid_mask=has_gt & np.isfinite(est),
+                                         n=threshold).ratio
         return MethodScores(method, len(self.est), self.missing, every.bad_dense,
                             every.bad_sparse, every.density, every.avgerr,
-                            visible.bad_dense, visible.bad_sparse, auc)
+                            visible.bad_dense, visible.bad_sparse, auc,
+                            bad1_dense=every1.bad_dense, bad1_sparse=every1.bad_sparse,
+                            bad1_dense_nonocc=visible1.bad_dense,
+                            bad1_sparse_nonocc=visible1.bad_sparse,
+                            density_nonocc=visible.density, auc_ratio_own=auc_own)
 
 
 def evaluate_bag(
@@ -217,14 +297,21 @@ def evaluate_bag(
     report = EvalReport(str(path), gt_topic, len(gt_frames), first.disparity.shape[::-1],
                         (np.inf, -np.inf), threshold)
     acc: dict[str, _Accumulator] = defaultdict(_Accumulator)
+    grid_acc: dict[str, _Accumulator] = defaultdict(_Accumulator)
     conf_for = {c: _disparity_for(c, estimates) for c in confidences}
+    occlusion_topic = f'{ns}/left/occlusion_gt'
+    if occlusion_topic in data:
+        report.nonocc_source = occlusion_topic
+    visible_count = gt_count = 0
     for stamp in sorted(gt_frames):
         gt = read_disparity(gt_frames[stamp]).disparity
         finite = gt[np.isfinite(gt)]
         report.gt_range = (min(report.gt_range[0], float(finite.min())),
                            max(report.gt_range[1], float(finite.max())))
-        occ_msg = data.get(f'{ns}/left/occlusion_gt', {}).get(stamp)
+        occ_msg = data.get(occlusion_topic, {}).get(stamp)
         nonocc = image_to_array(occ_msg) == 0 if occ_msg is not None else np.isfinite(gt)
+        visible_count += int(np.count_nonzero(nonocc & np.isfinite(gt)))
+        gt_count += finite.size
         frame_out: dict[str, Array] = {'ground truth': gt}
         maps: dict[str, Array] = {}
         depth_msg = data.get(f'{ns}/left/depth_gt', {}).get(stamp)
@@ -236,7 +323,13 @@ def evaluate_bag(
             conf_topic = next((c for c, d in conf_for.items() if d == topic), None)
             conf_msg = data.get(conf_topic, {}).get(stamp) if conf_topic else None
             conf = image_to_array(conf_msg) if conf_msg is not None else None
-            acc[topic].add(est, gt, nonocc, conf)
+            raw = None
+            raw_topic = topic.rsplit('/', 1)[0] + '/disparity'
+            if conf is not None and raw_topic != topic and raw_topic in data:
+                raw_msg = data[raw_topic].get(stamp)
+                raw = (read_disparity(raw_msg).disparity if raw_msg is not None
+                       else np.full(gt.shape, np.nan, np.float32))
+            acc[topic].add(est, gt, nonocc, conf, raw)
             if conf is not None and conf_topic is not None:
                 maps[f'{conf_topic}_confidence'] = conf
             if est is not None:
@@ -244,15 +337,28 @@ def evaluate_bag(
         if baselines:
             left, right = _rectified_pair(data, ns, stamp)
             drange = _baseline_range(data, estimates, stamp, gt)
-            for settings in BASELINES:
+            defaults = opencv_sgbm(left, right, STEREO_IMAGE_PROC_DEFAULTS,
+                                   disparity_range=drange)
+            acc[STEREO_IMAGE_PROC_DEFAULTS.label].add(defaults, gt, nonocc)
+            frame_out[STEREO_IMAGE_PROC_DEFAULTS.label] = defaults
+            for settings in SGBM_GRID:
                 est = opencv_sgbm(left, right, settings, disparity_range=drange)
-                acc[settings.label].add(est, gt, nonocc)
-                frame_out[settings.label] = est
+                grid_acc[settings.label].add(est, gt, nonocc)
         if previews is not None:
             _write_previews(Path(previews), stamp, frame_out, maps, threshold)
+    report.nonocc_fraction = visible_count / max(gt_count, 1)
     report.rows = [a.scores(m, threshold) for m, a in acc.items()]
+    report.grid = [a.scores(m, threshold) for m, a in grid_acc.items()]
+    if report.grid:
+        for key, what in (('bad_dense', f'bad-{threshold:g}'),
+                          ('bad1_dense_nonocc', 'nonocc bad-1')):
+            best = report.opencv_best(key)
+            report.rows.append(dataclasses.replace(
+                best, method=f'opencv best of {len(report.grid)} by {what}: '
+                             f'{best.method.removeprefix("opencv ")}'))
     report.rectification_mad = _rectification_mad(data, ns)
-    report.depth = {t: _depth_scores(data, t, f'{ns}/left/depth_gt') for t in depths}
+    if data.get(f'{ns}/left/depth_gt'):  # depth is scored only against a depth ground truth
+        report.depth = {t: _depth_scores(data, t, f'{ns}/left/depth_gt') for t in depths}
     return report
 
 
