@@ -166,3 +166,55 @@ def stereo_reports_8_paths(tmp_path_factory: pytest.TempPathFactory
                            ) -> dict[str, tuple[Path, Any]]:
     """The same with ``paths: 8``, the most accurate setting the README also reports."""
     return _replay_bundled(tmp_path_factory, {'paths': 8})
+
+
+#: The real pairs of test/data (Middlebury 2003, quarter size; README there), all searched
+#: with 64 disparities.
+REAL_PAIRS = ('teddy', 'cones')
+REAL_DATA = TEST_DIR / 'data' / 'middlebury2003'
+
+
+def import_real_pair(name: str, out: Path) -> Path:
+    """Import a pair of test/data as a bag (colour images, ground truth of both views)."""
+    from depth_nodes.tools.pairs import PairSource, import_pair
+
+    folder = REAL_DATA / name
+    import_pair(PairSource(folder / 'im2.png', folder / 'im6.png',
+                           ground_truth=folder / 'disp2.pgm', gt_scale=4.0,
+                           ground_truth_right=folder / 'disp6.pgm'), out)
+    return out
+
+
+def _replay_real(tmp_path_factory: pytest.TempPathFactory,
+                 sgm: dict[str, Any]) -> dict[str, tuple[Path, Any]]:
+    """Every real pair through the shipped stereo graph with a 64-disparity window (and
+    ``sgm`` overriding the matcher's parameters), scored by eval."""
+    from depth_nodes.ros.graph import load_graph_config
+    from depth_nodes.tools.evaluate import evaluate_bag
+    from depth_nodes.tools.process import process_bag
+
+    config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
+    out = {}
+    for name in REAL_PAIRS:
+        folder = tmp_path_factory.mktemp(name)
+        bag = import_real_pair(name, folder / 'in')
+        params = folder / 'params.yaml'
+        values = ', '.join(f'{k}: {v}' for k, v in {**sgm, 'disparity_range': 64}.items())
+        params.write_text(f'sgm_stereo:\n  ros__parameters: {{{values}}}\n')
+        report = process_bag(bag, folder / 'out', config=config, params_file=params)
+        assert sum(sum(c.values()) for c in report.drops.values()) == 0, report.format()
+        out[name] = (folder / 'out', evaluate_bag(folder / 'out'))
+    return out
+
+
+@pytest.fixture(scope='session')
+def real_reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Any]]:
+    """Teddy and Cones through the shipped graph (5 paths), scored by eval."""
+    return _replay_real(tmp_path_factory, {})
+
+
+@pytest.fixture(scope='session')
+def real_reports_8_paths(tmp_path_factory: pytest.TempPathFactory
+                         ) -> dict[str, tuple[Path, Any]]:
+    """The same with ``paths: 8``."""
+    return _replay_real(tmp_path_factory, {'paths': 8})

@@ -41,4 +41,5 @@ def test_header_names_the_paths_and_opencv_runs_the_matching_mode() -> None:
         graph = opencv_graph(config, paths)
         assert [n.plugin for n in graph.nodes] == ['sgm_stereo']  # no cross-check
         assert graph.nodes[0].parameters == {'paths': 5, 'backend': 'opencv',
-                                             'full_dp': full_dp}
+                                             'full_dp': full_dp, 'disp12_max_diff': 1,
+                                             'speckle_size': 100, 'speckle_range': 2}

@@ -183,7 +183,7 @@ def test_matcher_parameters_apply_from_the_next_frame(live: _Live) -> None:
     # the change is visible in the output itself, not only in the metadata
     assert np.nanmax(new.disparity) <= 95
     assert np.isnan(new.disparity).sum() != np.isnan(old.disparity).sum()
-    results = live.set(SGM, P2=220.0, disparity_range=128, uniqueness_ratio=20.0)
+    results = live.set(SGM, P2=220.0, disparity_range=128, uniqueness_ratio=10.0)
     assert all(r.successful for r in results), results
     restored = live.frame(1)
     _same(live.disparity(restored).disparity, live.expected(restored))

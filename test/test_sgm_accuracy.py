@@ -1,10 +1,12 @@
 """Census SGM against ground truth on the bundled bags, beside OpenCV's StereoSGBM.
 
-Each bag is replayed through the shipped pipeline (rectify -> sgm_stereo, 5 paths) and
-through the same with 8 paths by the bag harness, then scored by `depth-nodes eval` on the
-same rectified images and the same disparity window for every matcher. The issue's targets
-are the assertions: dense bad-2 at most 0.7x OpenCV's best configuration, and sparse bad-2
-lower than every OpenCV configuration at an equal or higher density.
+Each bag is replayed through the shipped pipeline (rectify -> sgm_stereo -> cross_check,
+5 paths) and through the same with 8 paths by the bag harness, then scored by
+`depth-nodes eval` on the same rectified images and the same disparity window for every
+matcher. The targets (``targets.assert_beats_opencv``) are the ones the real pairs are
+held to (``test_accuracy_real.py``): the raw disparity's dense bad-2 at most 0.6x OpenCV's
+best of an 18-setting grid and its sparse bad-2 below every OpenCV setting's at an equal or
+higher density; the dense checked output at most 0.5x OpenCV's best dense.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from targets import assert_beats_opencv
 
 from conftest import STEREO_RANGES
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
@@ -22,6 +25,10 @@ from depth_nodes.tools.bagio import BagReader
 from depth_nodes.tools.evaluate import EvalReport
 
 OURS = '/stereo/disparity'
+#: The shipped graph's figures before the real-pair work (README of that commit): raw
+#: dense / sparse bad-2 with 5 paths. None may get worse by more than 10 %.
+PREVIOUS = {'stereo_vga': (0.149, 0.047), 'stereo_qvga_color': (0.155, 0.067),
+            'stereo_qvga_fisheye': (0.132, 0.058)}
 
 
 @pytest.fixture(params=['stereo_reports', 'stereo_reports_8_paths'])
@@ -33,16 +40,20 @@ def reports(request: pytest.FixtureRequest) -> dict[str, tuple[Path, EvalReport]
 @pytest.mark.parametrize('bag', sorted(STEREO_RANGES))
 def test_beats_opencv_dense_and_sparse(reports: dict[str, tuple[Path, EvalReport]],
                                        bag: str) -> None:
-    rows = {r.method: r for r in reports[bag][1].rows}
-    ours = rows.pop(OURS)
-    rows = {name: row for name, row in rows.items() if name.startswith('opencv')}
-    assert len(rows) == 4
-    assert ours.missing_frames == 0
-    best_dense = min(r.bad_dense for r in rows.values())
-    assert ours.bad_dense <= 0.7 * best_dense, (ours, best_dense)
-    for name, theirs in rows.items():
-        assert ours.density >= theirs.density, name
-        assert ours.bad_sparse < theirs.bad_sparse, name
+    assert_beats_opencv(reports[bag][1])
+
+
+@pytest.mark.parametrize('bag', sorted(STEREO_RANGES))
+def test_no_worse_than_before_the_real_pairs(stereo_reports: dict[str, tuple[Path, EvalReport]],
+                                             bag: str) -> None:
+    """Tuning for real photographs did not cost the simulator scenes: the shipped raw
+    output is within 10 % of its earlier dense and sparse bad-2, at no lower density
+    (earlier: 0.893, 0.906, 0.922)."""
+    raw = stereo_reports[bag][1].row(OURS)
+    dense, sparse = PREVIOUS[bag]
+    assert raw.bad_dense <= 1.1 * dense
+    assert raw.bad_sparse <= 1.1 * sparse
+    assert raw.density >= 0.88
 
 
 def test_right_view_is_consistent_with_the_left(reports: dict[str, tuple[Path, EvalReport]]

@@ -138,9 +138,13 @@ def opencv_graph(config: GraphConfig, paths: int = 8) -> GraphConfig:
     graph.nodes = [n for n in graph.nodes if n.plugin != 'cross_check']
     for node in graph.nodes:
         if node.plugin == 'sgm_stereo':
-            node.parameters.update(backend='opencv', full_dp=opencv_mode(paths) == 'MODE_HH')
+            # StereoSGBM with its usual tuning of the shared filters (the census
+            # matcher's own values in the config are not the OpenCV user's)
+            node.parameters.update(backend='opencv', full_dp=opencv_mode(paths) == 'MODE_HH',
+                                   disp12_max_diff=1, speckle_size=100, speckle_range=2)
         if node.plugin == 'point_cloud':
             node.parameters['use_confidence'] = False
+            node.parameters.pop('min_confidence', None)
             node.remappings.pop('disparity', None)
     graph.name = f'{config.name} (opencv)'
     return graph
