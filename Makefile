@@ -31,10 +31,18 @@ unit: venv
 
 test: lint typecheck unit
 
+# The shipped stereo graph on the bundled simulator bag and on a real pair with ground
+# truth (Middlebury 2003 Teddy, test/data), each scored beside OpenCV's StereoSGBM.
+TEDDY := test/data/middlebury2003/teddy
 demo: venv
 	rm -rf $(DEMO_OUT)
 	$(BIN)/depth-nodes process bags/stereo_vga $(DEMO_OUT)/stereo_vga_out
 	$(BIN)/depth-nodes eval $(DEMO_OUT)/stereo_vga_out --previews $(DEMO_OUT)/previews
+	$(BIN)/depth-nodes import-pair $(TEDDY)/im2.png $(TEDDY)/im6.png $(DEMO_OUT)/teddy \
+	  --gt $(TEDDY)/disp2.pgm --gt-scale 4 --gt-right $(TEDDY)/disp6.pgm
+	$(BIN)/depth-nodes process $(DEMO_OUT)/teddy $(DEMO_OUT)/teddy_out \
+	  --params config/disparity_64.yaml
+	$(BIN)/depth-nodes eval $(DEMO_OUT)/teddy_out --previews $(DEMO_OUT)/previews_teddy
 
 # Regenerate the committed synthetic bags (deterministic from their seeds).
 bags: venv

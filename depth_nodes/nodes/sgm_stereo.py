@@ -100,7 +100,7 @@ PARAMETERS = [
     ParamSpec('intensity_cost', 'bt', 'Intensity cost: bt (Birchfield-Tomasi) or ad',
               check=_one_of(('bt', 'ad'))),
     ParamSpec('intensity_truncation', 30, 'Cap of the intensity cost, grey levels', 1, 255),
-    ParamSpec('p2_adaptive_scale', 5.0, 'Grey-level scale of the image-adaptive P2 (0: '
+    ParamSpec('p2_adaptive_scale', 8.0, 'Grey-level scale of the image-adaptive P2 (0: '
               'constant P2)', 0.0, 255.0),
     ParamSpec('subpixel', 'parabola', 'Sub-pixel refinement: parabola, equiangular or none',
               check=_one_of(list(SUBPIXEL_MODES))),

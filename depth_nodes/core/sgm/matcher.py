@@ -95,7 +95,7 @@ class SgmParams:
     intensity_truncation: int = 30
     P1: int = 18
     P2: int = 220
-    p2_adaptive_scale: float = 5.0
+    p2_adaptive_scale: float = 8.0
     paths: int = 8
     uniqueness_ratio: float = 10.0
     subpixel: str = 'parabola'
