@@ -24,7 +24,7 @@ import numpy as np
 import yaml  # type: ignore[import-untyped]
 from numpy.typing import ArrayLike, NDArray
 
-from depth_nodes.errors import CalibrationError
+from depth_nodes.errors import CalibrationError, yaml_problem
 
 PLUMB_BOB = 'plumb_bob'
 RATIONAL_POLYNOMIAL = 'rational_polynomial'
@@ -159,6 +159,9 @@ class CameraModel:
                 f'{self.width}x{self.height} image'
             )
         sx, sy = max(bx, 1), max(by, 1)
+        if rw // sx == 0 or rh // sy == 0:
+            raise CalibrationError(
+                f'binning {bx}x{by} of a {rw}x{rh} image leaves {rw // sx}x{rh // sy} pixels')
         K = np.array(self.K, dtype=np.float64).reshape(3, 3)
         P = np.array(self.P, dtype=np.float64).reshape(3, 4)
         for M in (K, P) if P.any() else (K,):  # an all-zero P keeps meaning [K | 0]
@@ -376,7 +379,7 @@ def read_camera_yaml(path: str | Path) -> tuple[CameraModel, str]:
     except OSError as exc:
         raise CalibrationError(f'{path}: cannot read camera calibration: {exc.strerror}') from None
     except yaml.YAMLError as exc:
-        raise CalibrationError(f'{path}: invalid YAML: {exc}') from None
+        raise CalibrationError(f'{path}: invalid YAML: {yaml_problem(exc)}') from None
     if not isinstance(doc, dict):
         raise CalibrationError(f'{path}: expected a YAML mapping, got {type(doc).__name__}')
     for key in ('image_width', 'image_height'):

@@ -140,7 +140,7 @@ def confidence_map(cost_ratio: Any, difference: Any, valid: Any, *, window: int 
     distinct = (1.0 - np.clip(np.nan_to_num(ratio, nan=1.0), 0.0, 1.0)).astype(np.float32)
     if window > 1:
         distinct = _box(distinct, window)
-    with np.errstate(invalid='ignore'):
+    with np.errstate(invalid='ignore', over='ignore'):
         agree = 1.0 / (1.0 + np.square(np.nan_to_num(diff, nan=np.inf) / scale))
     shared = distinct
     if support_window > 1:

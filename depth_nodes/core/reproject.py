@@ -123,9 +123,15 @@ def _reproject(disparity: NDArray[Any], stereo: StereoModel, min_range: float,
     points = np.empty((h, w, 3), dtype=np.float32)
     u = np.arange(w, dtype=np.float64) - cx
     v = np.arange(h, dtype=np.float64) - cy
-    points[..., 0] = (u[None, :] * z - tx) / fx
-    points[..., 1] = (v[:, None] * z - ty) / fy
-    points[..., 2] = z
+    # an absurd but finite calibration can put points beyond float32: those are invalid
+    with np.errstate(over='ignore', invalid='ignore'):
+        points[..., 0] = (u[None, :] * z - tx) / fx
+        points[..., 1] = (v[:, None] * z - ty) / fy
+        points[..., 2] = z
+    beyond = valid & ~np.isfinite(points).all(axis=2)
+    if beyond.any():
+        valid &= ~beyond
+        points[beyond] = np.nan
     return Reprojection(points=points, depth=points[..., 2].copy(), valid=valid)
 
 

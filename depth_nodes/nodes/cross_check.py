@@ -94,7 +94,8 @@ PARAMETERS = [
     ParamSpec('confidence_window', 9, 'Odd side of the box the cost measure is pooled '
               'over (1: no pooling)', 1, 31, check=_odd),
     ParamSpec('filled_confidence', 0.1, 'Confidence factor of filled pixels', 0.0, 1.0),
-    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0: every core. '
+    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0 (or more '
+              'than the cores): every core. '
               'A frame takes 5 - 20 ms here; under load a second thread mostly spins '
               'waiting for the first (see the README, bench --live)', 0, 1024),
 ]

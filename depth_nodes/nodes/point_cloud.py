@@ -95,7 +95,8 @@ PARAMETERS = [
               'confidence (needs use_confidence), depth_std', check=_check_extra_fields),
     ParamSpec('disparity_std', 0.25, 'Disparity standard deviation, px, for depth_std',
               0.0, 100.0),
-    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0: every core. '
+    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0 (or more '
+              'than the cores): every core. '
               'A frame takes 5 - 20 ms here; under load a second thread mostly spins '
               'waiting for the first (see the README, bench --live)', 0, 1024),
 ]

@@ -48,7 +48,8 @@ PARAMETERS = [
               'Interpolation: ' + ', '.join(f'{n} ({f})' for n, f in INTERPOLATIONS.items())
               + '; a name or image_proc\'s integer code',
               dynamic_typing=True, check=_check_interpolation),
-    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0: every core. '
+    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0 (or more '
+              'than the cores): every core. '
               'A frame takes 5 - 20 ms here; under load a second thread mostly spins '
               'waiting for the first (see the README, bench --live)', 0, 1024),
 ]

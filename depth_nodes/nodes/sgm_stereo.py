@@ -119,7 +119,8 @@ PARAMETERS = [
               0, 64),
     ParamSpec('disp12_max_diff', 2, 'Left-right check: largest |d_left - d_right| in px '
               '(0 or -1: off)', -1, 128),
-    ParamSpec('threads', 0, 'Threads of the matcher (both backends); 0: every core. In a '
+    ParamSpec('threads', 0, 'Threads of the matcher (both backends); 0 (or more than the '
+              'cores): every core. In a '
               'graph of several processes on few cores, 1 wastes less CPU on waiting '
               'threads (see the README, bench --live)', 0, 1024),
     ParamSpec('parallel_frames', 1, 'census_sgm: frames matched at once, each on its own '

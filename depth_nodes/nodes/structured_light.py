@@ -13,18 +13,27 @@ values current when its last frame arrives; changing ``mode`` or the pattern lay
 a sequence in progress): ``mode`` (gray, phase, opencv, speckle), ``axes``,
 ``phase_steps``, ``phase_period``, ``shadow_threshold``, ``min_modulation``, ``depth_min``,
 ``depth_max``, ``speckle_reference`` (image file), ``speckle_reference_depth``,
-``speckle_window``, ``speckle_min_score``, ``avoid_point_cloud_padding``, ``queue_size``.
+``speckle_window``, ``speckle_min_score``, ``avoid_point_cloud_padding``,
+``max_sequence_frames``, ``sequence_timeout``, ``queue_size``.
+
+Memory is bounded by the parameters, never by what a sender claims: frames waiting for
+their tag and tags waiting for their frame by ``queue_size``, a sequence by
+``max_sequence_frames`` (a tag announcing more is refused, ``pattern_count_too_large``,
+also before the projector's camera_info has told the real count), and a sequence that
+stops arriving is abandoned after ``sequence_timeout`` seconds (``sequence_incomplete``),
+as is one still incomplete when the stream ends.
 
 A frame or sequence without output is counted in ``drops`` and logged, by reason: the
 framing reasons of :mod:`~depth_nodes.core.structured_light.framing`, ``bad_pattern_tag``,
-``pattern_tag_missing``, ``pattern_tag_unmatched``, ``no_projector_info``,
-``bad_calibration``, ``bad_pattern_set``, ``unsupported_encoding``, ``malformed_image``,
-``size_mismatch``, ``speckle_reference``, ``sync_*``.
+``pattern_count_too_large``, ``pattern_tag_missing``, ``pattern_tag_unmatched``,
+``no_projector_info``, ``bad_calibration``, ``bad_pattern_set``, ``unsupported_encoding``,
+``malformed_image``, ``size_mismatch``, ``speckle_reference``, ``sync_*``.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from collections import OrderedDict
 from collections.abc import Mapping
 from pathlib import Path
@@ -98,6 +107,11 @@ PARAMETERS = [
     ParamSpec('avoid_point_cloud_padding', False, 'Pack points2 to 12 bytes per point'),
     ParamSpec('queue_size', 5, 'Frames held while their camera_info or pattern tag is '
               'missing', min_value=1, max_value=1000, read_only=True),
+    ParamSpec('max_sequence_frames', 128, 'Longest sequence held; a tag announcing more is '
+              'refused (pattern_count_too_large)', min_value=2, max_value=4096),
+    ParamSpec('sequence_timeout', 5.0, 'Seconds without a frame after which an incomplete '
+              'sequence is abandoned (sequence_incomplete); 0: never', min_value=0.0,
+              max_value=3600.0),
 ]
 
 
@@ -124,6 +138,9 @@ class StructuredLightNode(DepthNode):
         self.add_synced_inputs([(Image, 'image'), (CameraInfo, 'camera_info')], self.on_frame,
                                queue_size=self.queue_size)
         self.add_input(Header, 'pattern', self.on_tag)
+        self._last_sequence_frame = time.monotonic()
+        self.create_timer(0.5, lambda: self.guarded(self.check_sequence_timeout,
+                                                    where='the sequence timer'))
         # the projector's calibration: only the latest matters, whatever its stamp
         self.add_input(CameraInfo, 'projector/camera_info', self.on_projector_info,
                        check_stamps=False)
@@ -166,6 +183,34 @@ class StructuredLightNode(DepthNode):
             self.drop('pattern_tag_missing', f'frame at stamp {old} ns has no pattern tag '
                       f'(is the projector driver publishing "pattern"?)')
 
+    def check_sequence_timeout(self, now: float | None = None) -> None:
+        """Abandon an incomplete sequence whose last frame came ``sequence_timeout`` s
+        ago (the timer's callback; ``now``: monotonic seconds, for tests)."""
+        timeout = self.params.values['sequence_timeout']
+        now = time.monotonic() if now is None else now
+        if timeout > 0 and self.assembler.pending and now - self._last_sequence_frame > timeout:
+            self.drop('sequence_incomplete', f'{self.assembler.pending} frame(s) of a sequence '
+                      f'held, no frame for {now - self._last_sequence_frame:.1f} s '
+                      f'(sequence_timeout {timeout:g} s)')
+            self.assembler.reset()
+
+    def finish_stream(self) -> None:
+        """The stream ended: count the incomplete sequence and the unpaired frames and
+        tags (see :meth:`DepthNode.finish_stream`)."""
+        super().finish_stream()
+        if self.assembler.pending:
+            self.drop('sequence_incomplete', f'{self.assembler.pending} frame(s) of a '
+                      'sequence held when the stream ended')
+            self.assembler.reset()
+        if self._waiting:
+            self.drop('pattern_tag_missing', f'{len(self._waiting)} frame(s) without their '
+                      'pattern tag when the stream ended', count=len(self._waiting))
+            self._waiting.clear()
+        if self._tags:
+            self.drop('pattern_tag_unmatched', f'{len(self._tags)} pattern tag(s) without '
+                      'their image when the stream ended', count=len(self._tags))
+            self._tags.clear()
+
     # ---------------------------------------------------------------- sequences
 
     def _pattern_set(self, values: Mapping[str, Any]) -> PatternSet | None:
@@ -196,6 +241,10 @@ class StructuredLightNode(DepthNode):
         except MessageError as exc:
             self.drop('bad_pattern_tag', str(exc))
             return
+        if tag.count > values['max_sequence_frames']:
+            self.drop('pattern_count_too_large', f'pattern tag {tag} announces {tag.count} '
+                      f'frames, more than max_sequence_frames {values["max_sequence_frames"]}')
+            return
         # Without projector info yet (it may arrive just after the first frame) the tag's
         # count is taken on trust and checked when the sequence is complete.
         pattern_set = self._pattern_set(values) if self.projector_info is not None else None
@@ -205,6 +254,7 @@ class StructuredLightNode(DepthNode):
         if grey is None:
             return
         expected = pattern_set.count if pattern_set is not None else tag.count
+        self._last_sequence_frame = time.monotonic()
         frames, drops = self.assembler.add(tag, (grey, image.header, info), expected)
         for d in drops:
             self.drop(d.reason, d.detail)

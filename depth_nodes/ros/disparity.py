@@ -149,18 +149,36 @@ def read_disparity(msg: Any) -> DisparityFrame:
     Raises:
         EncodingError: The image is not 32FC1.
         MessageError: The image is malformed (see
-            :func:`~depth_nodes.ros.image.image_to_array`).
+            :func:`~depth_nodes.ros.image.image_to_array`) or empty, a field is not finite,
+            ``min_disparity > max_disparity``, ``delta_d`` is negative, or ``valid_window``
+            is not inside the image.
     """
     if msg.image.encoding != '32FC1':
         raise EncodingError(
             f'DisparityImage image encoding must be 32FC1, got {msg.image.encoding!r}'
         )
+    if msg.image.width == 0 or msg.image.height == 0:
+        raise MessageError(f'DisparityImage image is empty ({msg.image.width}x'
+                           f'{msg.image.height})')
+    fields = {'f': msg.f, 't': msg.t, 'min_disparity': msg.min_disparity,
+              'max_disparity': msg.max_disparity, 'delta_d': msg.delta_d}
+    for name, value in fields.items():
+        if not np.isfinite(value):
+            raise MessageError(f'DisparityImage {name} is {value}, not a finite number')
+    if msg.min_disparity > msg.max_disparity:
+        raise MessageError(f'DisparityImage min_disparity {msg.min_disparity} is greater '
+                           f'than max_disparity {msg.max_disparity}')
+    if msg.delta_d < 0:
+        raise MessageError(f'DisparityImage delta_d {msg.delta_d} is negative')
     disparity = np.array(image_to_array(msg.image), dtype=np.float32)
     min_d = float(msg.min_disparity)
     with np.errstate(invalid='ignore'):
         disparity[~(disparity >= min_d)] = np.nan
     roi = msg.valid_window
     x0, y0, w, h = int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height)
+    if w and h and (x0 + w > disparity.shape[1] or y0 + h > disparity.shape[0]):
+        raise MessageError(f'DisparityImage valid_window (x {x0}, y {y0}, {w}x{h}) is not '
+                           f'inside the {disparity.shape[1]}x{disparity.shape[0]} image')
     window = (x0, y0, x0 + w, y0 + h) if w and h else (0, 0, 0, 0)
     stamp = msg.header.stamp
     return DisparityFrame(

@@ -10,9 +10,12 @@ on the first three):
   overridden with ``qos_overrides`` parameters;
 * a frame that produces no output is never lost silently: :meth:`DepthNode.drop` counts it
   by reason and logs a throttled warning naming the reason;
-* every input message is counted and its stamp checked (a message not newer than the last
-  one on its topic is dropped as ``stamp_out_of_order``, unless the stamps jumped back by
-  :data:`STAMP_RESET_S` or more, as when a bag loops, which starts the topic over);
+* no message can stop a node: an exception a callback did not expect is counted as an
+  ``internal_error`` drop, its traceback logged once per kind, and the node goes on;
+* every input message is counted and its stamp checked (a stamp with ``nanosec`` of 1e9
+  or more is dropped as ``bad_stamp``; a message not newer than the last one on its topic
+  as ``stamp_out_of_order``, unless the stamps jumped back by :data:`STAMP_RESET_S` or
+  more, as when a bag loops, which starts the topic over);
 * every ``diagnostics_period`` seconds the node publishes a diagnostic_msgs/DiagnosticArray
   on ``/diagnostics``: input and output rates, processing time per frame, drops by reason.
 """
@@ -22,6 +25,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+import traceback
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -52,6 +56,7 @@ DROP_LOG_PERIOD_S = 5.0
 STAMP_RESET_S = 1.0
 #: Topic of the diagnostics every node publishes (the diagnostic_aggregator's input).
 DIAGNOSTICS_TOPIC = '/diagnostics'
+NS_PER_S = 1_000_000_000
 
 Sink = Callable[[str, Any], None]
 
@@ -123,6 +128,7 @@ class DepthNode(Node):
         self.received: Counter[str] = Counter()
         self.sink: Sink | None = None
         self._last_drop_log: dict[str, float] = {}
+        self._logged_errors: set[tuple[str, str]] = set()
         self._last_stamp: dict[str, int] = {}
         self._syncs: list[tuple[Any, Counter[str]]] = []
         self._stereo_cache: StereoInfoCache | None = None
@@ -144,7 +150,8 @@ class DepthNode(Node):
         if period > 0:
             self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
                                                           PUBLISHER_DEPTH)
-            self.create_timer(period, self.publish_diagnostics)
+            self.create_timer(period, lambda: self.guarded(self.publish_diagnostics,
+                                                           where='the diagnostics timer'))
 
     def add_input(
         self,
@@ -172,14 +179,16 @@ class DepthNode(Node):
         def on_message(msg: Any) -> None:
             self.received[resolved] += 1
             self._window.inputs[resolved] += 1
+            if not self._stamp_valid(resolved, msg):
+                return
             if check_stamps and not self._stamp_in_order(resolved, msg):
                 return
             if not self.callback_is_frame_time:  # workers may be publishing meanwhile
-                callback(msg)
+                self.guarded(callback, msg, where=resolved)
                 return
             published = sum(self._window.outputs.values())
             start = time.perf_counter()
-            callback(msg)
+            self.guarded(callback, msg, where=resolved)
             if sum(self._window.outputs.values()) > published:
                 self.record_frame_time(time.perf_counter() - start)
 
@@ -197,6 +206,43 @@ class DepthNode(Node):
         """Add one frame's processing time to the diagnostics (any thread)."""
         with self._counting:
             self._window.frame_times.append(seconds)
+
+    def guarded(self, callback: Callable[..., None], *args: Any, where: str) -> None:
+        """Run ``callback(*args)``; an exception it did not expect becomes a counted
+        ``internal_error`` drop (its traceback logged once per exception type and place)
+        instead of ending the node. Used for every input callback and timer."""
+        try:
+            callback(*args)
+        except Exception as exc:  # the last line of defence: the node must go on
+            self.internal_error(exc, where)
+
+    def internal_error(self, exc: BaseException, where: str) -> None:
+        """Count an unexpected exception as an ``internal_error`` drop; log its traceback
+        the first time this type of exception happens at ``where``."""
+        key = (where, type(exc).__name__)
+        with self._counting:
+            first = key not in self._logged_errors
+            self._logged_errors.add(key)
+        if first:
+            self.get_logger().error(
+                f'unexpected {type(exc).__name__} handling {where}; the frame is dropped and '
+                f'the node goes on (logged once per kind):\n'
+                + ''.join(traceback.format_exception(exc)).rstrip())
+        self.drop('internal_error', f'{where}: {type(exc).__name__}: {exc}')
+
+    def _stamp_valid(self, topic: str, msg: Any) -> bool:
+        """False (after counting a ``bad_stamp`` drop) for a header stamp that is not a
+        time: ``nanosec`` must be below 1e9 (builtin_interfaces/Time)."""
+        header = getattr(msg, 'header', None)
+        stamp = getattr(header, 'stamp', None) if header is not None else getattr(
+            msg, 'stamp', None)  # std_msgs/Header itself
+        if stamp is None:
+            return True
+        if not 0 <= stamp.nanosec < NS_PER_S:
+            self.drop('bad_stamp', f'{topic}: stamp nanosec {stamp.nanosec} is not below 1e9 '
+                      f'(sec {stamp.sec}): not a valid time')
+            return False
+        return True
 
     def _stamp_in_order(self, topic: str, msg: Any) -> bool:
         header = getattr(msg, 'header', None)
@@ -259,12 +305,15 @@ class DepthNode(Node):
 
         def feed(index: int) -> Callable[[Any], None]:
             def on_message(msg: Any) -> None:
-                sync.add(index, msg)
-                for why, count in sync.dropped.items():
-                    if count > seen[why]:
-                        self.drop(f'sync_{why}', f'{count - seen[why]} message(s) from '
-                                  f'{", ".join(topics)} could not be matched by stamp ({why})')
-                        seen[why] = count
+                try:
+                    sync.add(index, msg)
+                finally:  # also when the set's callback raised: the losses stand
+                    for why, count in list(sync.lost_frames.items()):
+                        if count > seen[why]:
+                            self.drop(f'sync_{why}', f'{count - seen[why]} frame(s) of '
+                                      f'{", ".join(topics)} could not be matched by stamp '
+                                      f'({why})', count=count - seen[why])
+                            seen[why] = count
             return on_message
 
         for index, (msg_type, topic) in enumerate(inputs):
@@ -276,10 +325,23 @@ class DepthNode(Node):
         ``time_jump`` drops), so the inputs can be matched again from the new stamps on."""
         self._last_stamp.clear()
         for sync, seen in self._syncs:
-            if sync.queued:
-                self.drop('time_jump', f'{sync.queued} message(s) waiting for their partners '
-                          'were discarded when the stamps jumped back')
+            if sync.queued_frames:
+                self.drop('time_jump', f'{sync.queued_frames} frame(s) waiting for their '
+                          'partners were discarded when the stamps jumped back',
+                          count=sync.queued_frames)
             sync.reset()
+            seen.clear()
+
+    def finish_stream(self) -> None:
+        """The input stream ended (the offline harness calls this after the last message):
+        count what the node still holds, which no later message can complete, as
+        ``stream_ended`` drops. Nodes with state of their own extend it."""
+        for sync, _ in self._syncs:
+            if sync.queued_frames:
+                self.drop('stream_ended', f'{sync.queued_frames} frame(s) still waiting for '
+                          'their partners when the stream ended', count=sync.queued_frames)
+            sync.reset()
+        for _, seen in self._syncs:
             seen.clear()
 
     def frame_image(self, msg: Any, what: str, shape: tuple[int, ...],
@@ -319,16 +381,17 @@ class DepthNode(Node):
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
         return None
 
-    def drop(self, reason: str, detail: str) -> None:
-        """Count a frame that produced no output, and log why (throttled per reason).
+    def drop(self, reason: str, detail: str, count: int = 1) -> None:
+        """Count frames that produced no output, and log why (throttled per reason).
 
         Args:
             reason: A short stable key, e.g. ``size_mismatch``; the counter's key.
             detail: The human-readable explanation, e.g. the sizes that disagreed.
+            count: How many frames were lost for this reason at once.
         """
         with self._counting:
-            self.drops[reason] += 1
-            self._window.drops[reason] += 1
+            self.drops[reason] += count
+            self._window.drops[reason] += count
             now = time.monotonic()
             last = self._last_drop_log.get(reason)
             log = last is None or now - last >= DROP_LOG_PERIOD_S
@@ -416,5 +479,9 @@ def run_node(node_class: type[DepthNode], args: list[str] | None = None) -> int:
     finally:
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            rclpy.try_shutdown()
+        except Exception:  # rclpy's signal handler shut the context down meanwhile: fine
+            if rclpy.ok():
+                raise
     return 0

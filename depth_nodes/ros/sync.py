@@ -18,6 +18,16 @@ of messages added since the last :meth:`reset`. Drop reasons:
 - ``'interval_too_large'``: (approximate only) no set containing it can be within
   ``max_interval``.
 
+Besides messages, both count lost *frames* in ``lost_frames``, by the same reasons: one
+per frame whatever evicted it, so a set that completes and discards three waiting sets
+counts three. The exact synchroniser's frame is a stamp (its messages share it): a pending
+stamp discarded counts once, however many of its messages had arrived. The approximate
+synchroniser's frame is a message of input 0 (the primary input, e.g. the image of an
+image + camera_info pair): messages of the other inputs discarded on their own (a camera_info
+at 30 Hz beside images at 10 Hz) are counted in ``dropped`` only. A message refused as
+``out_of_order`` or ``duplicate`` counts as a frame on either synchroniser (exact: it is one
+message of its stamp, the stamp is not lost otherwise).
+
 Neither class is thread-safe or re-entrant: call ``add`` from one thread (in rclpy, one
 mutually exclusive callback group) and do not call ``add`` from inside the callback.
 """
@@ -108,6 +118,8 @@ class _SyncBase:
         self.queue_size = queue_size
         self.callback = callback
         self.dropped: Counter[str] = Counter()
+        #: Frames lost, by reason (see the module notes).
+        self.lost_frames: Counter[str] = Counter()
         self.emitted = 0
         self._last_stamp: list[int | None] = [None] * n_inputs
 
@@ -122,7 +134,9 @@ class _SyncBase:
         """Enforce strictly increasing stamps per input; count the rejects."""
         last = self._last_stamp[index]
         if last is not None and stamp <= last:
-            self._drop('duplicate' if stamp == last else 'out_of_order')
+            reason = 'duplicate' if stamp == last else 'out_of_order'
+            self._drop(reason)
+            self._lose(reason)
             return False
         self._last_stamp[index] = stamp
         return True
@@ -131,8 +145,13 @@ class _SyncBase:
         if count:  # never create zero entries, so ``dropped == {...}`` comparisons hold
             self.dropped[reason] += count
 
+    def _lose(self, reason: str, frames: int = 1) -> None:
+        if frames:
+            self.lost_frames[reason] += frames
+
     def _reset_counters(self) -> None:
         self.dropped.clear()
+        self.lost_frames.clear()
         self.emitted = 0
         self._last_stamp = [None] * self.n_inputs
 
@@ -166,6 +185,11 @@ class ExactTimeSynchronizer(_SyncBase):
         """Number of messages currently held waiting for their set to complete."""
         return sum(sum(m is not None for m in slots) for slots in self._pending.values())
 
+    @property
+    def queued_frames(self) -> int:
+        """Number of frames (stamps) currently waiting for their set to complete."""
+        return len(self._pending)
+
     def add(self, index: int, msg: Any) -> None:
         """Offer ``msg`` on input ``index``; may call the callback once.
 
@@ -185,6 +209,7 @@ class ExactTimeSynchronizer(_SyncBase):
         if len(self._pending) > self.queue_size:
             oldest = min(self._pending)  # may be the newcomer's own stamp
             self._drop('queue_full', sum(m is not None for m in self._pending.pop(oldest)))
+            self._lose('queue_full')
             if oldest == stamp:
                 return
         if any(m is None for m in slots):
@@ -192,6 +217,7 @@ class ExactTimeSynchronizer(_SyncBase):
         del self._pending[stamp]
         for older in [s for s in self._pending if s < stamp]:
             self._drop('unmatched', sum(m is not None for m in self._pending.pop(older)))
+            self._lose('unmatched')
         self.emitted += 1
         self.callback(*slots)
 
@@ -294,6 +320,17 @@ class ApproximateTimeSynchronizer(_SyncBase):
         """Number of messages currently held (including a not yet published candidate)."""
         return sum(len(q) + len(p) for q, p in zip(self._queues, self._past, strict=True))
 
+    @property
+    def queued_frames(self) -> int:
+        """Number of frames (messages of input 0) currently held."""
+        return len(self._queues[0]) + len(self._past[0])
+
+    def _drop_from(self, index: int, reason: str, count: int = 1) -> None:
+        """Count ``count`` messages of input ``index`` discarded (frames if index is 0)."""
+        self._drop(reason, count)
+        if index == 0:
+            self._lose(reason, count)
+
     def add(self, index: int, msg: Any) -> None:
         """Offer ``msg`` on input ``index``; may call the callback one or more times.
 
@@ -315,7 +352,7 @@ class ApproximateTimeSynchronizer(_SyncBase):
             # Abandon the candidate search, then drop the oldest message of this input.
             self._recover_all()
             queue.popleft()
-            self._drop('queue_full')
+            self._drop_from(index, 'queue_full')
             self._overflowed[index] = True
             self._candidate = None
             self._pivot = -1
@@ -345,8 +382,8 @@ class ApproximateTimeSynchronizer(_SyncBase):
         self._cand_start = start
         self._cand_end = end
         # Messages swept past are older than the new candidate's: they can never be used.
-        for past in self._past:
-            self._drop('unmatched', len(past))
+        for i, past in enumerate(self._past):
+            self._drop_from(i, 'unmatched', len(past))
             past.clear()
 
     def _publish(self) -> None:
@@ -380,11 +417,11 @@ class ApproximateTimeSynchronizer(_SyncBase):
             if self._pivot < 0:
                 if self._max_ns >= 0 and end - start > self._max_ns:
                     self._queues[start_i].popleft()
-                    self._drop('interval_too_large')
+                    self._drop_from(start_i, 'interval_too_large')
                     continue
                 if self._overflowed[end_i]:
                     self._queues[start_i].popleft()
-                    self._drop('unmatched')
+                    self._drop_from(start_i, 'unmatched')
                     continue
                 self._make_candidate(start, end)
                 self._pivot = end_i

@@ -99,10 +99,12 @@ def use_threads(threads: int) -> None:
     numba's setting belongs to the calling thread, so a node applies it in the thread that
     runs its kernels, once per frame. OpenCV's is process-wide (nodes composed into one
     process share it) and is only changed when it differs, since changing it rebuilds
-    OpenCV's thread pool.
+    OpenCV's thread pool. More threads than cores are clamped to the cores (``threads:
+    1024`` once made a composed process start over 1,000 OpenCV threads).
     """
     cores = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
     numba.set_num_threads(min(threads, cores) if threads else cores)
-    wanted = threads if threads else cv2.getNumberOfCPUs()
+    cpus = cv2.getNumberOfCPUs()
+    wanted = min(threads, cpus) if threads else cpus
     if cv2.getNumThreads() != wanted:
         cv2.setNumThreads(wanted)
