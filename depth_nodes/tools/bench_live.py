@@ -110,11 +110,14 @@ class LiveBench:
     target_hz: float = 10.0
     threads: int = 0
     paths: int = 8
+    composed: bool = False
 
     def format(self) -> str:
         threads = f'{self.threads} thread(s)' if self.threads else 'every core'
-        lines = [f'live: 640x480, 128 disparities, {self.paths} paths, one process per node '
-                 f'over DDS (Fast DDS, localhost), SGM node on {threads}', self.ours.format()]
+        layout = ('every node in one `depth-nodes pipeline` process' if self.composed else
+                  'one process per node')
+        lines = [f'live: 640x480, 128 disparities, {self.paths} paths, {layout} over DDS '
+                 f'(Fast DDS, localhost), SGM node on {threads}', self.ours.format()]
         met = self.ours.fps >= 0.95 * self.target_hz and self.ours.received == self.ours.sent
         lines.append(f'  target {self.target_hz:g} Hz with nothing lost: '
                      f'{"met" if met else "NOT met"}')
@@ -158,7 +161,7 @@ def _percentile(values: list[float], q: float) -> float:
 def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame], *,
              rate: float, count: int, warmup: int, label: str, workdir: Path,
              env: dict[str, str], threads: int | None = None,
-             paths: int | None = None) -> LiveRun:
+             paths: int | None = None, composed: bool = False) -> LiveRun:
     """Run ``config`` as processes, feed ``warmup`` frames one at a time, then ``count``
     frames at ``rate`` Hz, and measure."""
     watch = sorted({t for _, _, outs in stages for t in outs})
@@ -189,7 +192,7 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
     if paths is not None:
         sgm['paths'] = paths
     graph = GraphProcesses(config, workdir, env=env, overrides={'sgm_stereo': sgm} if sgm
-                           else {})
+                           else {}, composed=composed)
     try:
         graph.start()
         _wait(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
@@ -294,7 +297,8 @@ def _wait(done: Callable[[], bool], timeout: float, graph: GraphProcesses,
 
 def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
                threads: int | None = None, opencv: bool = True,
-               bag: str | Path | None = None, paths: int | None = None) -> LiveBench:
+               bag: str | Path | None = None, paths: int | None = None,
+               composed: bool = False) -> LiveBench:
     """Measure the stereo pipeline (and the OpenCV graph) as separate processes, the SGM
     node of both with ``threads`` threads (0: every core; None: as the config says), ours
     with ``paths`` aggregation paths (None: as the config says) and OpenCV in the mode of
@@ -318,13 +322,16 @@ def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
     with tempfile.TemporaryDirectory(prefix='depth_nodes_live_') as tmp:
         ours = run_live(config, OURS_STAGES, frames, rate=rate, count=count, warmup=warmup,
                         label='depth_nodes graph (census SGM + cross-check)',
-                        workdir=Path(tmp) / 'ours', env=env, threads=threads, paths=paths)
+                        workdir=Path(tmp) / 'ours', env=env, threads=threads, paths=paths,
+                        composed=composed)
         theirs = None
         if opencv:
             mode = opencv_mode(used_paths)
             theirs = run_live(opencv_graph(config, used_paths), OPENCV_STAGES, frames,
                               rate=rate, count=count, warmup=warmup,
                               label=f'OpenCV graph (StereoSGBM {mode}, no cross-check)',
-                              workdir=Path(tmp) / 'opencv', env=env, threads=threads)
+                              workdir=Path(tmp) / 'opencv', env=env, threads=threads,
+                              composed=composed)
     used = sgm.parameters.get('threads', 0) if threads is None else threads
-    return LiveBench(ours, theirs, target_hz=rate, threads=used, paths=used_paths)
+    return LiveBench(ours, theirs, target_hz=rate, threads=used, paths=used_paths,
+                     composed=composed)

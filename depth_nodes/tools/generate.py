@@ -34,6 +34,7 @@ from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim import StereoFrame, StereoSimConfig, simulate_stereo
 from depth_nodes.tools.bagio import BagWriter
+from depth_nodes.tools.signals import stop_requested
 
 NAMESPACE = '/stereo'
 
@@ -104,6 +105,8 @@ def write_stereo_bag(
     with BagWriter(path, overwrite=overwrite, compression_level=COMPRESSION_LEVEL) as writer:
         writer.set_custom_data(CONFIG_KEY, json.dumps(dataclasses.asdict(config)))
         for frame in simulate_stereo(config):
+            if stop_requested():  # SIGINT / SIGTERM: the bag holds whole frames only
+                break
             for topic, msg in frame_messages(frame):
                 writer.write(topic, msg, frame.stamp_ns)
                 count += 1

@@ -23,9 +23,11 @@ from rclpy.qos import (
     QoSProfile,
     ReliabilityPolicy,
 )
+from rclpy.signals import SignalHandlerOptions
 
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.tools.bagio import BagReader, BagWriter, message_class
+from depth_nodes.tools.signals import STOP, stop_requested
 
 #: Queue depth of the player's publishers and the recorder's subscriptions.
 QUEUE_DEPTH = 1000
@@ -91,10 +93,15 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
     options = options or PlayOptions()
     options.validate()
     reader = BagReader(path)
+    if reader.message_count == 0:
+        reader.close()
+        raise BagError(f'{path} holds no messages: nothing to play')
     topics = options.topics or sorted(reader.topics)
     for topic in topics:
         reader.require(topic)
-    rclpy.init()
+    # Stopping is ours (tools/signals.py): rclpy's handler would shut the context down
+    # under a publish() in progress ("rcl_shutdown already called").
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = Node('depth_nodes_player')
     try:
         pubs = {t: node.create_publisher(message_class(reader.topics[t]), t, _reliable())
@@ -106,18 +113,22 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
             clock_pub = node.create_publisher(Clock, '/clock', _reliable())
         waited = {**pubs, '/clock': clock_pub} if clock_pub is not None else pubs
         _wait_for_subscribers(waited, options.wait_for_subscribers)
-        time.sleep(options.delay)
+        STOP.wait(options.delay)
         if log:
             log.write(f'playing {reader.message_count} messages on {len(topics)} topics\n')
             log.flush()
         published = 0
-        while True:
+        while not stop_requested():
             published += _play_once(reader, topics, pubs, clock_pub, options.rate)
             if not options.loop:
                 break
+        if stop_requested():
+            if log:
+                log.write(f'interrupted after {published} messages\n')
+            return published
         for pub in waited.values():
             pub.wait_for_all_acked(Duration(seconds=5.0))
-        time.sleep(options.linger)
+        STOP.wait(options.linger)
         return published
     finally:
         node.destroy_node()
@@ -127,10 +138,10 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
 
 def _wait_for_subscribers(pubs: dict[str, Any], timeout: float) -> None:
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and not stop_requested():
         if all(p.get_subscription_count() > 0 for p in pubs.values()):
             return
-        time.sleep(0.02)
+        STOP.wait(0.02)
 
 
 def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
@@ -142,8 +153,8 @@ def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
         if start_bag is None:
             start_bag = bag_msg.timestamp
         delay = start_wall + (bag_msg.timestamp - start_bag) / 1e9 / rate - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+        if (delay > 0 and STOP.wait(delay)) or stop_requested():
+            break
         if clock_pub is not None:
             from rosgraph_msgs.msg import Clock
 
@@ -220,7 +231,7 @@ def record_bag(path: str | Path, topics: Iterable[str], *, duration: float | Non
         raise ConfigError(f'--duration must be positive, got {duration}')
     if max_messages is not None and max_messages <= 0:
         raise ConfigError(f'--max-messages must be positive, got {max_messages}')
-    rclpy.init()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # stopping is ours (play)
     recorder = None
     try:
         recorder = Recorder(path, topics, overwrite=overwrite)
@@ -228,7 +239,7 @@ def record_bag(path: str | Path, topics: Iterable[str], *, duration: float | Non
         executor.add_node(recorder.node)
         deadline = None if duration is None else time.monotonic() + duration
         announced = False
-        while deadline is None or time.monotonic() < deadline:
+        while (deadline is None or time.monotonic() < deadline) and not stop_requested():
             missing = recorder.poll_topics()
             if not missing and not announced and log:
                 log.write(f'recording {len(recorder.topics)} topics\n')

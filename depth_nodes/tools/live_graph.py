@@ -56,6 +56,17 @@ def write_params_file(config: GraphConfig, path: Path,
     return path
 
 
+def write_graph_file(config: GraphConfig, path: Path,
+                     overrides: dict[str, dict[str, Any]] | None = None) -> Path:
+    """``config`` as a graph YAML, each node's parameters merged with ``overrides``."""
+    nodes = [{'name': spec.name, 'plugin': spec.plugin, 'namespace': spec.namespace,
+              'parameters': parameters_for(spec, overrides or {}),
+              'remappings': dict(spec.remappings)} for spec in config.nodes]
+    path.write_text(yaml.safe_dump({'graph': {'name': config.name, 'nodes': nodes}},
+                                   sort_keys=False))
+    return path
+
+
 class GraphProcesses:
     """Every node of ``config`` in its own process; a context manager that stops them.
 
@@ -67,8 +78,10 @@ class GraphProcesses:
     """
 
     def __init__(self, config: GraphConfig, workdir: Path, *, env: dict[str, str] | None = None,
-                 overrides: dict[str, dict[str, Any]] | None = None) -> None:
+                 overrides: dict[str, dict[str, Any]] | None = None,
+                 composed: bool = False) -> None:
         self.config = config
+        self.composed = composed
         self.workdir = Path(workdir)
         self.env = dict(os.environ if env is None else env)
         # a node that hangs or crashes writes every thread's Python stack into its log
@@ -79,8 +92,17 @@ class GraphProcesses:
         self.exit_codes: dict[str, int] = {}
 
     def start(self) -> None:
-        """Start every node (returns at once; see :meth:`StereoFeeder.wait_for_graph`)."""
+        """Start every node (returns at once; see :meth:`StereoFeeder.wait_for_graph`); with
+        ``composed``, all of them in one `depth-nodes pipeline` process named 'pipeline'."""
         self.workdir.mkdir(parents=True, exist_ok=True)
+        if self.composed:
+            graph = write_graph_file(self.config, self.workdir / 'graph.yaml', self.overrides)
+            log = (self.workdir / 'pipeline.log').open('wb')
+            self.processes['pipeline'] = subprocess.Popen(
+                [sys.executable, '-m', 'depth_nodes.tools.cli', 'pipeline', '--config',
+                 str(graph)], stdout=log, stderr=subprocess.STDOUT, env=self.env)
+            log.close()
+            return
         params = write_params_file(self.config, self.workdir / 'params.yaml', self.overrides)
         for spec in self.config.nodes:
             name = spec.fully_qualified_name

@@ -1,25 +1,46 @@
 """`depth-nodes pipeline`: every node of a graph description composed into one process.
 
 The nodes are the same classes the console scripts run, created from the YAML graph
-description (names, namespaces, parameters, remappings; see ``depth_nodes.ros.graph``) and
-spun by one multi-threaded executor. Each node keeps rclpy's default mutually exclusive
-callback group, so a node handles one message at a time while different nodes run
-concurrently (the numba kernels release the GIL). Messages between the nodes still travel
-over the middleware, so the composed graph behaves as separate processes do, and external
-tools (`depth-nodes param`, `play`, `record`) reach every node by its name.
+description (names, namespaces, parameters, remappings; see ``depth_nodes.ros.graph``).
+Each node is spun by its own single-threaded executor on its own thread, so a node handles
+one message at a time while different nodes run concurrently (the numba kernels and
+OpenCV release the GIL). Messages between the nodes still travel over the middleware, so
+the composed graph behaves as separate processes do, and external tools (`depth-nodes
+param`, `play`, `record`) reach every node by its name.
+
+Why not one multi-threaded executor for all: rclpy's MultiThreadedExecutor keeps waking
+for a subscription whose data is ready while its node's (mutually exclusive) callback is
+still running on a worker, so its main thread spun at 75 - 81 % of a core holding the GIL,
+and at 5 Hz the composed graph delivered 4 of 100 frames that five processes all delivered
+(`depth-nodes bench --live --composed`). A node's own executor only waits for its node, and
+sleeps while that node works.
 """
 
 from __future__ import annotations
 
+import contextlib
+import threading
+import time
 from pathlib import Path
 from typing import Any, TextIO
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import (
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    SingleThreadedExecutor,
+)
+from rclpy.signals import SignalHandlerOptions
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.ros.graph import create_nodes, load_graph_config, load_params_file
+
+#: Seconds each node's executor gets to finish its callback when the pipeline stops.
+STOP_TIMEOUT_S = 10.0
+#: Most executor threads `pipeline --threads` accepts (each node runs one callback at a
+#: time, so more threads than callbacks only wait).
+MAX_EXECUTOR_THREADS = 64
 
 
 def run_pipeline(config_path: str | Path, *, params_file: str | Path | None = None,
@@ -30,7 +51,9 @@ def run_pipeline(config_path: str | Path, *, params_file: str | Path | None = No
     Args:
         config_path: The graph description (e.g. config/stereo_pipeline.yaml).
         params_file: A ROS 2 parameter file applied on top of the config's parameters.
-        threads: Executor threads; default one per node (at least 2).
+        threads: Threads of each node's executor: by default (and with 1) one, the node
+            handling one callback at a time; more only help a node whose callbacks may
+            overlap (none of the package's do).
         ros_args: Extra ``--ros-args ...`` arguments (e.g. ``--log-level debug``).
         log: Where to announce the nodes once they are up.
 
@@ -43,30 +66,68 @@ def run_pipeline(config_path: str | Path, *, params_file: str | Path | None = No
     config = load_graph_config(config_path)
     if not config.nodes:
         raise ConfigError(f'graph config {config_path} has no nodes')
-    if threads is not None and threads < 1:
-        raise ConfigError(f'--threads must be at least 1, got {threads}')
+    if threads is not None and not 1 <= threads <= MAX_EXECUTOR_THREADS:
+        raise ConfigError(f'--threads must be in 1..{MAX_EXECUTOR_THREADS}, got {threads}')
     context = Context()
-    rclpy.init(args=['depth-nodes', *(ros_args or [])], context=context)
+    # rclpy installs no signal handler for a context of its own unless asked: without
+    # one, SIGTERM killed the process (leaving its Fast DDS segment in /dev/shm) and a
+    # background start ignored SIGINT. Its handlers wake the executors and shut them down.
+    rclpy.init(args=['depth-nodes', *(ros_args or [])], context=context,
+               signal_handler_options=SignalHandlerOptions.ALL)
     nodes: list[Any] = []
-    executor = None
+    executors: list[Any] = []
+    spinners: list[threading.Thread] = []
     try:
         params = load_params_file(params_file) if params_file else {}
         nodes = create_nodes(config, params, context=context)
-        executor = MultiThreadedExecutor(num_threads=threads or max(2, len(nodes)),
-                                         context=context)
         for node in nodes:
+            if threads is not None and threads > 1:
+                executor: Any = MultiThreadedExecutor(num_threads=threads, context=context)
+            else:
+                executor = SingleThreadedExecutor(context=context)
             executor.add_node(node)
+            executors.append(executor)
+            spinners.append(threading.Thread(target=_spin, args=(executor,), daemon=True,
+                                             name=f'spin {node.get_fully_qualified_name()}'))
+        for spinner in spinners:
+            spinner.start()
         if log is not None:
             names = ', '.join(n.get_fully_qualified_name() for n in nodes)
             log.write(f'pipeline {config.name}: {len(nodes)} nodes up ({names})\n')
             log.flush()
-        executor.spin()
+        while context.ok() and all(t.is_alive() for t in spinners):
+            time.sleep(0.1)  # the main thread only waits: signals are handled here
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if executor is not None:
-            executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        _stop(context, nodes, executors, spinners, log)
     return 0
+
+
+def _stop(context: Context, nodes: list[Any], executors: list[Any],
+          spinners: list[threading.Thread], log: TextIO | None) -> None:
+    """Shut the context down, which wakes every executor and ends its spin, and only then
+    tear the executors and nodes down. (Shutting an executor down from here while its
+    thread still waited freed the guard condition it waited on: a segfault in about one
+    stop in six.)"""
+    try:
+        rclpy.try_shutdown(context=context)
+    except Exception:  # rclpy's signal handler shut it down in between: fine
+        if context.ok():
+            raise
+    for spinner in spinners:
+        spinner.join(timeout=STOP_TIMEOUT_S)
+    for node, executor, spinner in zip(nodes, executors, spinners, strict=False):
+        if spinner.is_alive():  # stuck in a callback: leave it to the process exit
+            if log is not None:
+                log.write(f'pipeline: {node.get_fully_qualified_name()} did not stop within '
+                          f'{STOP_TIMEOUT_S:g} s\n')
+            continue
+        executor.shutdown(timeout_sec=1)
+        node.destroy_node()
+
+
+def _spin(executor: Any) -> None:
+    """One node's executor until the context shuts down (Ctrl-C, SIGTERM)."""
+    with contextlib.suppress(ExternalShutdownException, KeyboardInterrupt):
+        executor.spin()

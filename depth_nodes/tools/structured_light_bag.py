@@ -47,6 +47,7 @@ from depth_nodes.ros.camera_info import camera_info_to_model, model_to_camera_in
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim.projector import ProjectorCameraSim, ProjectorSimConfig, reference_plane_scene
 from depth_nodes.tools.bagio import BagReader, BagWriter
+from depth_nodes.tools.signals import stop_requested
 
 NAMESPACE = '/sl'
 CONFIG_KEY = 'depth_nodes.sim.structured_light'
@@ -143,6 +144,8 @@ def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfi
             count += 1
 
         for seq in range(config.sequences):
+            if stop_requested():  # SIGINT / SIGTERM: whole sequences only
+                return count
             capture = sim.capture(patterns, noise_seed=seq)
             for index, image in enumerate(capture.images):
                 stamp = config.start_stamp_ns + round(frame * period_ns)
@@ -162,6 +165,8 @@ def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfi
         dots = speckle_pattern(proj.width, proj.height, seed=config.sim.seed,
                                density=config.sim.speckle_density)[None]
         for k in range(config.speckle_frames):
+            if stop_requested():
+                return count
             stamp = config.start_stamp_ns + round(frame * period_ns)
             frame += 1
             h = _header(stamp, cam.frame_id)
