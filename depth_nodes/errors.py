@@ -8,6 +8,8 @@ line instead of a traceback.
 
 from __future__ import annotations
 
+from typing import Any
+
 
 class DepthNodesError(Exception):
     """Base class of every error depth_nodes raises on purpose."""
@@ -43,3 +45,14 @@ class ConfigError(DepthNodesError):
 
 class InputFileError(DepthNodesError):
     """An input file (image, ground truth, mask) that is missing or cannot be used."""
+
+
+def yaml_problem(exc: Any) -> str:
+    """A YAML parser error in one line: what is wrong and where (PyYAML's own text spans
+    several lines with a picture of the spot)."""
+    problem = getattr(exc, 'problem', None) or getattr(exc, 'context', None)
+    mark = getattr(exc, 'problem_mark', None) or getattr(exc, 'context_mark', None)
+    if problem is None:
+        return ' '.join(str(exc).split())
+    where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark is not None else ''
+    return f'{problem}{where}'

@@ -10,6 +10,7 @@ import pytest
 from sensor_msgs.msg import CameraInfo
 
 from conftest import run_cli
+from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.tools.bagio import BagWriter
 
@@ -86,17 +87,32 @@ def test_bad_graph_config_and_params(tmp_path: Path, ros_env: dict[str, str]) ->
     assert 'Traceback' not in result.stderr
 
 
-def test_usage_errors_exit_2() -> None:
-    result = run_cli(['frobnicate'])
-    assert result.returncode == 2
-    assert 'invalid choice' in result.stderr
+@pytest.mark.parametrize(('args', 'message'), [
+    (['frobnicate'], "invalid choice: 'frobnicate'"),
+    (['process'], 'the following arguments are required: in_bag, out_bag'),
+    (['eval', 'x', '--threshold', 'two'], "argument --threshold: invalid float value: 'two'"),
+    (['bench', 'sgm', '--paths', '6'], 'argument --paths: invalid choice: 6'),
+])
+def test_usage_errors_are_one_line_and_exit_1(args: list[str], message: str) -> None:
+    """argparse's own errors follow the command's rule too: one line, status 1 (argparse
+    prints the usage and exits 2)."""
+    result = run_cli(args)
+    assert result.returncode == 1
+    (line,) = result.stderr.strip().splitlines()
+    assert message in line
+    assert line.startswith('depth-nodes')
+    assert '--help' in line
 
 
 @pytest.mark.parametrize(('args', 'message'), [
     (['pipeline', '--config', 'missing.yaml'], 'graph config not found: missing.yaml'),
     (['pipeline', '--config', '{tmp}/g.yaml'], "unknown node plugin 'nope'"),
     (['pipeline', '--config', '{tmp}/empty.yaml'], 'has no nodes'),
-    (['pipeline', '--threads', '0'], '--threads must be at least 1, got 0'),
+    (['pipeline', '--threads', '0'], '--threads must be in 1..64, got 0'),
+    (['pipeline', '--threads', '1024'], '--threads must be in 1..64, got 1024'),
+    (['bench', 'sgm', '--disparities', '0'], '--disparities must be in 1..639'),
+    (['bench', 'sgm', '--frames', '0'], '--frames must be at least 1'),
+    (['bench', '--live', '--rate', '0'], '--rate must be positive'),
     (['pipeline', '--params', '{tmp}/typo.yaml'],
      'node /stereo/sgm_stereo (sgm_stereo) has no parameter P3'),
     (['eval', 'x', '--ros-args', '-p', 'a:=1'], '--ros-args is only accepted by pipeline'),
@@ -113,3 +129,21 @@ def test_pipeline_and_live_usage_errors(tmp_path: Path, ros_env: dict[str, str],
     assert result.returncode == 1, result.stderr
     assert message in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+def test_commands_that_produce_nothing_fail(tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """record with no message on its topics, eval with nothing to score: one line, exit 1,
+    and no empty bag left behind."""
+    result = run_cli(['record', str(tmp_path / 'rec'), '--topics', '/nobody/publishes',
+                      '--duration', '1'], env=ros_env)
+    assert result.returncode == 1
+    assert 'nothing was recorded (no message on /nobody/publishes)' in result.stderr
+    assert not (tmp_path / 'rec').exists()
+    with BagWriter(tmp_path / 'gt_only') as writer:
+        writer.write('/stereo/left/disparity_gt', build_disparity(
+            np.ones((4, 5), np.float32), None, focal=1.0, baseline=1.0, min_disparity=0.0,
+            max_disparity=1.0, delta_d=0.0), 1)
+    result = run_cli(['eval', str(tmp_path / 'gt_only'), '--no-baseline'], env=ros_env)
+    assert result.returncode == 1
+    (line,) = result.stderr.strip().splitlines()
+    assert 'nothing to score' in line

@@ -155,3 +155,57 @@ def test_cli_bad_input_bag_is_one_line(tmp_path: Path, ros_env: dict[str, str], 
     assert len(lines) == 1
     assert message in lines[0]
     assert 'Traceback' not in result.stderr
+
+
+def _flip(bag: Path, count: int = 64) -> None:
+    """Flip ``count`` bytes in the middle of the bag's storage file (its message data)."""
+    mcap = next(bag.glob('*.mcap'))
+    data = bytearray(mcap.read_bytes())
+    middle = len(data) // 2
+    for i in range(count):
+        data[middle + i] ^= 0xFF
+    mcap.write_bytes(bytes(data))
+
+
+def test_damage_to_a_written_bag_is_found_when_it_is_read(tmp_path: Path,
+                                                          graph: GraphConfig,
+                                                          ros_env: dict[str, str]) -> None:
+    """64 flipped bytes in a bag `process` wrote went unnoticed by process, play and eval
+    (the MCAP chunks carried no CRC): now every reader says the bag is corrupt, and
+    `process` leaves no partial output behind."""
+    _input_bag(tmp_path / 'in', _frames(400))
+    process_bag(tmp_path / 'in', tmp_path / 'out', config=graph)
+    _flip(tmp_path / 'out')
+    with BagReader(tmp_path / 'out') as reader, pytest.raises(
+            BagError, match='Chunk checksum mismatch'):
+        list(reader.messages())
+    with pytest.raises(BagError, match=r'checksum mismatch; .*again not written'):
+        process_bag(tmp_path / 'out', tmp_path / 'again', config=graph)
+    assert not (tmp_path / 'again').exists()
+    result = run_cli(['play', str(tmp_path / 'out')], env=ros_env)  # eval: the same reader
+    assert result.returncode == 1
+    (line,) = result.stderr.strip().splitlines()
+    assert 'corrupt bag' in line
+
+
+def test_a_run_that_produces_nothing_is_an_error(tmp_path: Path, graph: GraphConfig,
+                                                 ros_env: dict[str, str]) -> None:
+    """A bag whose topics no node takes (another namespace, say) used to exit 0 with
+    '(nothing published)'; an empty bag too."""
+    with BagWriter(tmp_path / 'elsewhere') as writer:
+        writer.write('/camera/left/image_raw', array_to_image(_frames(1)[0], 'mono8',
+                                                              _header(0)), 10**11)
+    (tmp_path / 'g.yaml').write_text(GRAPH)
+    result = run_cli(['process', str(tmp_path / 'elsewhere'), str(tmp_path / 'out'),
+                      '--config', str(tmp_path / 'g.yaml')], env=ros_env)
+    assert result.returncode == 1
+    assert 'the graph published nothing' in result.stderr
+    assert 'is subscribed but neither in the bag nor published' in result.stdout
+    assert not (tmp_path / 'out').exists()
+    with BagWriter(tmp_path / 'empty'):
+        pass
+    for args in (['process', str(tmp_path / 'empty'), str(tmp_path / 'out')],
+                 ['play', str(tmp_path / 'empty')]):
+        result = run_cli(args, env=ros_env)
+        assert result.returncode == 1
+        assert 'holds no messages' in result.stderr

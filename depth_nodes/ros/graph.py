@@ -26,7 +26,7 @@ from typing import Any
 import yaml
 from rclpy.parameter import Parameter
 
-from depth_nodes.errors import ConfigError
+from depth_nodes.errors import ConfigError, yaml_problem
 from depth_nodes.ros.node import DepthNode
 
 #: Short plugin names of the nodes this package provides. Each is also the name of the
@@ -71,7 +71,7 @@ def _load_yaml(path: Path, what: str) -> Any:
     try:
         return yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ConfigError(f'{what} {path} is not valid YAML: {exc}') from None
+        raise ConfigError(f'{what} {path} is not valid YAML: {yaml_problem(exc)}') from None
 
 
 def load_graph_config(path: str | Path) -> GraphConfig:

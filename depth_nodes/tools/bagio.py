@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import functools
 import importlib
+import struct
+import zlib
 from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -26,9 +28,17 @@ from rosbags.rosbag2 import (
 )
 from rosbags.typesys import Stores, get_typestore
 
-from depth_nodes.errors import BagError
+from depth_nodes.errors import BagError, yaml_problem
 
 _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+
+
+def _one_line(exc: BaseException) -> str:
+    """A storage library's error in one line (its YAML errors span several)."""
+    cause = exc.__cause__ or exc.__context__
+    if cause is not None and hasattr(cause, 'problem'):  # a YAML error underneath
+        return f'metadata.yaml is not valid YAML: {yaml_problem(cause)}'
+    return ' '.join(str(exc).split()).rstrip('.')
 
 
 def message_class(msgtype: str) -> type:
@@ -94,7 +104,7 @@ class BagReader:
             self._reader = Reader(self.path)
             self._reader.open()
         except Exception as exc:
-            raise BagError(f'cannot open bag {self.path}: {exc}') from None
+            raise BagError(f'cannot open bag {self.path}: {_one_line(exc)}') from None
         self.topics: dict[str, str] = {}
         self.counts: Counter[str] = Counter()
         for conn in self._reader.connections:
@@ -138,7 +148,7 @@ class BagReader:
         except BagError:
             raise
         except Exception as exc:
-            raise BagError(f'corrupt bag {self.path}: {exc}') from None
+            raise BagError(f'corrupt bag {self.path}: {_one_line(exc)}') from None
 
     def close(self) -> None:
         """Close the bag."""
@@ -198,6 +208,7 @@ class BagWriter:
                            f'{" (" + str(exc.filename) + ")" if exc.filename else ""}') from None
         if compress and compression_level is not None:
             _set_chunk_compression_level(self._writer, compression_level)
+        _write_chunk_crcs(self._writer)
 
     def set_custom_data(self, key: str, value: str) -> None:
         """Store a key/value string in the bag's metadata (e.g. the generator's seed)."""
@@ -249,6 +260,43 @@ def _set_chunk_compression_level(writer: Writer, level: int) -> None:
     except ImportError:
         from backports import zstd  # type: ignore[import-not-found,no-redef]
     storage.compressor = functools.partial(zstd.compress, level=level)
+
+
+#: Offset of the uncompressed-data CRC in an MCAP chunk record: opcode (1), record length
+#: (8), message start and end time and uncompressed size (8 each).
+_CHUNK_CRC_OFFSET = 1 + 8 + 24
+
+
+def _write_chunk_crcs(writer: Writer) -> None:
+    """Make the MCAP storage write each chunk's CRC32, which rosbags leaves 0 (none).
+
+    rosbags' reader checks a nonzero CRC against the decompressed chunk, so damage to a
+    bag written here is found when it is read (flipped bytes in a bag written by
+    `process` went unnoticed by `process`, `play` and `eval`). The CRC is patched into the
+    chunk record just written.
+    """
+    storage = writer.storage
+    if not all(hasattr(storage, a) for a in ('close_chunk', 'chunk', 'bio')):
+        return  # another storage: nothing to add
+    original = storage.close_chunk
+
+    def close_chunk() -> None:
+        crc = zlib.crc32(storage.chunk.bio.getvalue())
+        start = storage.bio.tell()
+        original()
+        end = storage.bio.tell()
+        storage.bio.seek(start + _CHUNK_CRC_OFFSET)
+        storage.bio.write(struct.pack('<I', crc))
+        storage.bio.seek(end)
+
+    storage.close_chunk = close_chunk
+
+
+def remove_bag(path: str | Path) -> None:
+    """Delete a bag folder written here (one holding metadata.yaml or nothing else)."""
+    path = Path(path)
+    if path.is_dir() and ((path / 'metadata.yaml').is_file() or not any(path.iterdir())):
+        _remove_tree(path)
 
 
 def _remove_tree(path: Path) -> None:

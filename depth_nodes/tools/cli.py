@@ -15,8 +15,10 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NoReturn
 
-from depth_nodes.errors import ConfigError, DepthNodesError
+from depth_nodes.errors import BagError, ConfigError, DepthNodesError
+from depth_nodes.tools import signals
 
 EXIT_ERROR = 1
 #: The bags committed with the package (a source checkout).
@@ -24,6 +26,11 @@ BUNDLED_BAGS = Path(__file__).resolve().parents[2] / 'bags'
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
+    with signals.graceful():
+        return _generate(args)
+
+
+def _generate(args: argparse.Namespace) -> int:
     from depth_nodes.tools import structured_light_bag as sl
     from depth_nodes.tools.generate import PRESETS, preset, write_stereo_bag
 
@@ -55,6 +62,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             print(f'{path}: {name}, {sl_config.sim.width}x{sl_config.sim.height}, '
                   f'{sl_config.sequences} sequence(s) of {sl_config.pattern_set.count} frames '
                   f'+ {sl_config.speckle_frames} speckle, {count} messages, {size:.1f} MB')
+            if signals.stop_requested():
+                break
             continue
         config = preset(name)
         if args.seed is not None:
@@ -66,8 +75,15 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             on_frame=lambda i, n=config.n_frames: print(f'  frame {i + 1}/{n}', file=sys.stderr),
         )
         size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
-        print(f'{path}: {name}, {config.width}x{config.height}, {config.n_frames} frames, '
+        frames = (f'{config.n_frames} frames' if not signals.stop_requested() else
+                  'frames up to the signal')
+        print(f'{path}: {name}, {config.width}x{config.height}, {frames}, '
               f'{count} messages, {size:.1f} MB')
+        if signals.stop_requested():
+            break
+    if signals.stop_requested():
+        print('depth-nodes generate: interrupted; the last bag holds the frames written '
+              'before the signal (its metadata says how many)', file=sys.stderr)
     return 0
 
 
@@ -79,10 +95,18 @@ def _cmd_process(args: argparse.Namespace) -> int:
 
     config = load_graph_config(args.config or default_config_path())
     config = select_nodes(config, args.nodes)
-    report = process_bag(args.in_bag, args.out_bag, config=config, params_file=args.params,
-                         overwrite=args.force, progress=sys.stderr)
+    with signals.graceful():
+        report = process_bag(args.in_bag, args.out_bag, config=config,
+                             params_file=args.params, overwrite=args.force,
+                             progress=sys.stderr)
     print(f'{args.in_bag} -> {args.out_bag} (graph {config.name})')
     print(report.format())
+    if report.interrupted:
+        print(f'depth-nodes process: interrupted after {report.done} of {report.total} '
+              f'messages; {args.out_bag} holds what was done', file=sys.stderr)
+    elif not report.published:
+        raise BagError(f'the graph published nothing (see the drops above); '
+                       f'{args.out_bag} was removed')
     return 0
 
 
@@ -119,16 +143,24 @@ def _cmd_play(args: argparse.Namespace) -> int:
     options = PlayOptions(rate=args.rate, loop=args.loop, clock=args.clock, topics=args.topics,
                           wait_for_subscribers=args.wait_for_subscribers, delay=args.delay,
                           linger=args.linger)
-    count = play_bag(args.bag, options, log=sys.stdout)
+    with signals.graceful():
+        count = play_bag(args.bag, options, log=sys.stdout)
     print(f'played {count} messages')
     return 0
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.bagio import remove_bag
     from depth_nodes.tools.live import record_bag
 
-    count = record_bag(args.out_bag, args.topics, duration=args.duration,
-                       max_messages=args.max_messages, overwrite=args.force, log=sys.stdout)
+    with signals.graceful():
+        count = record_bag(args.out_bag, args.topics, duration=args.duration,
+                           max_messages=args.max_messages, overwrite=args.force,
+                           log=sys.stdout)
+    if count == 0:
+        remove_bag(args.out_bag)
+        raise BagError(f'nothing was recorded (no message on {", ".join(args.topics)}); '
+                       f'{args.out_bag} was removed')
     print(f'recorded {count} messages to {args.out_bag}')
     return 0
 
@@ -154,6 +186,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
     report = evaluate_bag(args.bag, threshold=args.threshold, baselines=not args.no_baseline,
                           previews=args.previews)
+    if not report.rows:
+        raise BagError(f'nothing to score in {args.bag}: no disparity besides the ground '
+                       'truth, and --no-baseline')
     print(report.format(grid=args.grid))
     if args.previews:
         print(f'previews written to {args.previews}')
@@ -167,16 +202,35 @@ def _cmd_eval_sl(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_bench_args(args: argparse.Namespace) -> None:
+    """Refuse values no benchmark can run with, in one line each."""
+    if args.frames is not None and args.frames < 1:
+        raise ConfigError(f'--frames must be at least 1, got {args.frames}')
+    if args.threads is not None and args.threads < 0:
+        raise ConfigError(f'--threads must be >= 0 (0: every core), got {args.threads}')
+    if args.width < 16 or args.height < 16:
+        raise ConfigError(f'--width and --height must be at least 16, got {args.width}x'
+                          f'{args.height}')
+    if not 1 <= args.disparities < 640:  # the sgm bench matches a 640 px wide pair
+        raise ConfigError(f'--disparities must be in 1..639 (the pair is 640 px wide), got '
+                          f'{args.disparities}')
+    if not args.rate > 0:
+        raise ConfigError(f'--rate must be positive, got {args.rate}')
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.live:
+        _check_bench_args(args)
         from depth_nodes.tools.bench_live import bench_live
 
         print(bench_live(rate=args.rate, count=args.frames or 50, threads=args.threads,
-                         opencv=not args.no_opencv, bag=args.bag, paths=args.paths).format())
+                         opencv=not args.no_opencv, bag=args.bag, paths=args.paths,
+                         composed=args.composed).format())
         return 0
     if args.stage is None:
         raise ConfigError('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
                           'structured_light) or --live')
+    _check_bench_args(args)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
     import cv2
 
@@ -209,9 +263,17 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the command's error convention: one line on stderr, status 1 (its
+    own prints the usage too and exits 2). ``--help`` still prints the usage."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_ERROR, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the `depth-nodes` command."""
-    parser = argparse.ArgumentParser(prog='depth-nodes', description=__doc__.split('\n')[0])
+    parser = _Parser(prog='depth-nodes', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
 
     gen = sub.add_parser('generate', help='write synthetic stereo bags with ground truth')
@@ -280,7 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
     pipe.add_argument('--config', help='graph YAML (default: config/stereo_pipeline.yaml)')
     pipe.add_argument('--params', help='ROS 2 parameter file overriding node parameters')
     pipe.add_argument('--threads', type=int,
-                      help='executor threads (default: one per node, at least 2)')
+                      help='threads of each node\'s executor (default 1: a node handles one '
+                      'callback at a time, the nodes run beside each other)')
     pipe.set_defaults(func=_cmd_pipeline)
 
     play = sub.add_parser('play', help='publish a bag into the live graph')
@@ -347,6 +410,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help='--live: frames per second to publish (default 10)')
     bench.add_argument('--no-opencv', action='store_true',
                        help='--live: skip the OpenCV graph')
+    bench.add_argument('--composed', action='store_true',
+                       help='--live: run each graph composed in one `depth-nodes pipeline` '
+                       'process instead of one process per node')
     bench.add_argument('--bag', help='structured_light, --live: the bag to use '
                        '(default: bundled)')
     bench.add_argument('--width', type=int, default=640, help='rectify: frame width')
@@ -379,6 +445,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from depth_nodes.ros.dds import use_large_message_profile
     from depth_nodes.ros.memory import keep_freed_memory
 
+    signals.install()  # SIGINT and SIGTERM, also when started in the background
+
     use_large_message_profile()  # before any rclpy.init: live commands move large messages
     keep_freed_memory()  # and without a page fault per 4 KiB of each (ros/memory.py)
     if ros_args and args.command != 'pipeline':
@@ -388,10 +456,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except DepthNodesError as exc:
-        print(f'depth-nodes {args.command}: error: {exc}', file=sys.stderr)
+        message = ' '.join(str(exc).split())  # one line, whatever a library put in it
+        print(f'depth-nodes {args.command}: error: {message}', file=sys.stderr)
         return EXIT_ERROR
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt:  # stopped by the user (SIGINT or SIGTERM): not a failure
+        print(f'depth-nodes {args.command}: interrupted', file=sys.stderr)
+        return 0
 
 
 if __name__ == '__main__':

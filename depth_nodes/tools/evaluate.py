@@ -44,7 +44,7 @@ from depth_nodes.core.metrics import (
     sparsification_auc,
 )
 from depth_nodes.core.rectify import rectify_image
-from depth_nodes.errors import BagError
+from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array, to_gray
@@ -265,7 +265,10 @@ def evaluate_bag(
 
     Raises:
         BagError: The bag is missing/corrupt or has no ``.../left/disparity_gt`` topic.
+        ConfigError: ``previews`` cannot be created.
     """
+    if previews is not None:
+        _previews_folder(Path(previews))
     with BagReader(path) as reader:
         gt_topics = sorted(t for t, ty in reader.topics.items()
                            if t.endswith(GT_SUFFIX) and ty == DISPARITY)
@@ -420,6 +423,17 @@ def _disparity_for(confidence_topic: str, estimates: list[str]) -> str | None:
         if f'{ns}/{name}' in estimates:
             return f'{ns}/{name}'
     return None
+
+
+def _previews_folder(folder: Path) -> None:
+    """Create the previews folder now, so a bad path fails before the work, in one line."""
+    existing = next((a for a in (folder, *folder.parents) if a.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ConfigError(f'cannot write previews to {folder}: {existing} is a file')
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f'cannot write previews to {folder}: {exc.strerror}') from None
 
 
 def _slug(name: str) -> str:

@@ -25,7 +25,8 @@ from depth_nodes.ros.graph import (
     load_graph_config,
     load_params_file,
 )
-from depth_nodes.tools.bagio import BagReader, BagWriter, message_type_name
+from depth_nodes.tools.bagio import BagReader, BagWriter, message_type_name, remove_bag
+from depth_nodes.tools.signals import stop_requested
 
 #: The default graph: the stereo pipeline under /stereo.
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'stereo_pipeline.yaml'
@@ -60,6 +61,11 @@ class ProcessReport:
     drops: dict[str, Counter[str]] = field(default_factory=dict)
     shadowed: list[str] = field(default_factory=list)
     unfed: list[str] = field(default_factory=list)
+    #: Input messages handled, of ``total`` in the bag.
+    done: int = 0
+    total: int = 0
+    #: True when a SIGINT / SIGTERM stopped the run (the output holds what was done).
+    interrupted: bool = False
 
     def format(self) -> str:
         """A plain-text summary for the terminal."""
@@ -158,6 +164,9 @@ def process_bag(
     params = load_params_file(params_file) if params_file else {}
     report = ProcessReport()
     reader = BagReader(in_bag)
+    if reader.message_count == 0:
+        reader.close()
+        raise BagError(f'{in_bag} holds no messages: nothing to process')
     context = Context()
     rclpy.init(args=[], context=context)
     nodes: list[Any] = []
@@ -173,8 +182,15 @@ def process_bag(
         report.shadowed = sorted(produced & set(reader.topics))
         _check_types(reader, routes)
         report.unfed = sorted(set(routes) - set(reader.topics) - produced)
-        with BagWriter(out_bag, overwrite=overwrite) as writer:
-            _run(reader, writer, nodes, routes, produced, report, progress)
+        writer = BagWriter(out_bag, overwrite=overwrite)
+        try:
+            with writer:
+                _run(reader, writer, nodes, routes, produced, report, progress)
+        except BagError as exc:  # e.g. the input is corrupt part-way: no partial output
+            remove_bag(out_bag)
+            raise BagError(f'{exc}; {out_bag} not written') from None
+        if not report.published and not report.interrupted:
+            remove_bag(out_bag)  # a run that produced nothing leaves nothing behind
     finally:
         for node in nodes:
             report.drops[node.get_fully_qualified_name()] = Counter(node.drops)
@@ -215,7 +231,12 @@ def _run(
     for node in nodes:
         node.sink = sink
     bar = _Progress(reader.message_count, progress or sys.stderr)
+    report.total = reader.message_count
     for done, bag_msg in enumerate(reader.messages(), start=1):
+        if stop_requested():  # SIGINT / SIGTERM: close the bag with what is done
+            report.interrupted = True
+            break
+        report.done = done
         now[0] = bag_msg.timestamp
         if bag_msg.topic not in produced:
             writer.write(bag_msg.topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype)
@@ -228,3 +249,5 @@ def _run(
                 spec_in.callback(msg)
         bar.update(done)
     bar.close()
+    for node in nodes:  # what the nodes still hold can never complete: count it
+        node.finish_stream()
