@@ -229,8 +229,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         return 0
     if args.stage is None:
         raise ConfigError('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
-                          'structured_light) or --live')
+                          'structured_light, soak) or --live')
     _check_bench_args(args)
+    if args.stage == 'soak':
+        from depth_nodes.tools.soak import soak
+
+        print(soak(duration=args.duration, rate=args.rate, tune_every=args.tune_every,
+                   composed=args.composed).format())
+        return 0
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
     import cv2
 
@@ -401,8 +407,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser('bench', help='speed figures beside OpenCV, measured in one run')
     bench.add_argument('stage', nargs='?', choices=['rectify', 'sgm', 'cross_check',
-                                                    'point_cloud', 'structured_light'],
-                       help='what to time (or --live)')
+                                                    'point_cloud', 'structured_light', 'soak'],
+                       help='what to time (or --live); soak: the stereo graph fed for '
+                       '--duration s at --rate, P2 changed every --tune-every s: losses, '
+                       'memory, parameter answers')
+    bench.add_argument('--duration', type=float, default=1800.0,
+                       help='soak: seconds to run (default 1800)')
+    bench.add_argument('--tune-every', type=float, default=10.0,
+                       help='soak: seconds between two changes of P2 (default 10)')
     bench.add_argument('--live', action='store_true',
                        help='the stereo pipeline as separate processes over DDS: sustained '
                        'rate and per-stage latency, beside the OpenCV graph')
@@ -411,8 +423,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument('--no-opencv', action='store_true',
                        help='--live: skip the OpenCV graph')
     bench.add_argument('--composed', action='store_true',
-                       help='--live: run each graph composed in one `depth-nodes pipeline` '
-                       'process instead of one process per node')
+                       help='--live, soak: run each graph composed in one `depth-nodes '
+                       'pipeline` process instead of one process per node')
     bench.add_argument('--bag', help='structured_light, --live: the bag to use '
                        '(default: bundled)')
     bench.add_argument('--width', type=int, default=640, help='rectify: frame width')
