@@ -11,7 +11,9 @@ every node process's resident memory, and at the end reads every node's totals f
   node and reason) and messages the middleware did not deliver (an upstream node's output
   total minus the downstream node's input total, per topic). A frame that is lost and
   appears in neither is lost uncounted;
-* resident memory of each process at the first sample and the last, and its largest;
+* resident memory of each process: at the first sample, at the run's middle and at the
+  end, its largest, and its growth over the second half (what "flat" is judged by: the
+  first half includes allocations made once, such as a second matcher's buffers);
 * the parameter service's answer times.
 """
 
@@ -90,9 +92,11 @@ class SoakReport:
                      f'{verdict}')
         for name, samples in sorted(self.memory_mb.items()):
             if samples:
+                mid = samples[len(samples) // 2]
                 lines.append(f'  memory {name.rsplit("/", 1)[-1]:<14} first {samples[0]:7.1f} MB'
-                             f'  last {samples[-1]:7.1f} MB  max {max(samples):7.1f} MB  '
-                             f'({len(samples)} samples)')
+                             f'  middle {mid:7.1f} MB  last {samples[-1]:7.1f} MB  max '
+                             f'{max(samples):7.1f} MB  second half {samples[-1] - mid:+.1f} MB'
+                             f'  ({len(samples)} samples)')
         if self.answers_ms:
             lines.append(f'  parameter service ({len(self.answers_ms)} sets of P2): answer '
                          f'median {statistics.median(self.answers_ms):.0f} ms, max '
