@@ -150,8 +150,10 @@ def test_last_row_must_be_complete() -> None:
 
 
 def test_unknown_encoding_lists_supported() -> None:
-    with pytest.raises(EncodingError, match=r"unsupported image encoding 'yuv422'.*mono8.*32FC1"):
-        image_to_array(_raw('yuv422', 2, 2, 4, bytes(8)))
+    with pytest.raises(EncodingError, match=r"unsupported image encoding 'yuv420'.*mono8.*32FC1"
+                                            r".*bayer_rggb8.*nv21"):
+        image_to_array(_raw('yuv420', 2, 2, 4, bytes(8)))
+
 
 
 def test_step_smaller_than_row() -> None:
@@ -173,8 +175,8 @@ def test_array_to_image_checks_dtype_channels_and_ndim() -> None:
         array_to_image(np.zeros((2, 2), np.uint8), 'rgb8')
     with pytest.raises(MessageError, match=r'must be 2-D or 3-D, got shape \(4,\)'):
         array_to_image(np.zeros(4, np.uint8), 'mono8')
-    with pytest.raises(EncodingError, match="unsupported image encoding 'bayer_rggb8'"):
-        array_to_image(np.zeros((2, 2), np.uint8), 'bayer_rggb8')
+    with pytest.raises(EncodingError, match="unsupported image encoding 'bayer_rgbg8'"):
+        array_to_image(np.zeros((2, 2), np.uint8), 'bayer_rgbg8')
 
 
 def test_to_gray() -> None:

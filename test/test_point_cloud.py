@@ -277,7 +277,7 @@ def test_inconsistent_start_up_parameters_are_refused(context: Context) -> None:
     ({('left_info', 'width'): 320, ('right_info', 'width'): 320}, 'size_mismatch'),
     ({('image', 'width'): 80, ('image', 'step'): 240}, 'size_mismatch'),
     ({('image', 'encoding'): '32FC1'}, 'unsupported_encoding'),
-    ({('image', 'encoding'): 'yuv422'}, 'unsupported_encoding'),
+    ({('image', 'encoding'): 'yuv420'}, 'unsupported_encoding'),
     ({('image', 'step'): 10}, 'malformed_image'),
 ])
 def test_bad_input_is_a_counted_drop(node: Any, changes: dict[Any, Any], reason: str) -> None:

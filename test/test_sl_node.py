@@ -170,7 +170,7 @@ def test_bad_and_missing_tags(node: Any) -> None:
 def test_unsupported_encoding(node: Any) -> None:
     h = _header(10**9)
     msg = array_to_image(CAPTURE.images[0], 'mono8', h)
-    msg.encoding = 'yuv422'
+    msg.encoding = 'yuv420'
     node.cb['/projector/camera_info'](model_to_camera_info(CAPTURE.projector, h))
     node.cb['/image'](msg)
     node.cb['/camera_info'](model_to_camera_info(CAPTURE.camera, h))

@@ -41,14 +41,15 @@ from stereo_msgs.msg import DisparityImage
 from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reproject_disparity
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.image import array_to_image, to_rgb8
+from depth_nodes.ros.image import CAMERA_ENCODINGS, array_to_image, decode_camera_image, to_rgb8
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 from depth_nodes.ros.pointcloud import build_pointcloud
 from depth_nodes.ros.workers import use_threads
 
 #: Colour encodings the cloud's rgb can be taken from.
-COLOR_ENCODINGS = ('mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8')
+COLOR_ENCODINGS = ('mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8', 'rgb16', 'bgr16',
+                   'rgba16', 'bgra16', *CAMERA_ENCODINGS)
 #: Names accepted in ``extra_fields``.
 EXTRA_FIELDS = ('confidence', 'depth_std')
 DEPTH_ENCODINGS = ('32FC1', '16UC1')
@@ -174,7 +175,11 @@ class PointCloudNode(DepthNode):
             pixels = self.frame_image(image, 'colour image', shape, COLOR_ENCODINGS)
             if pixels is None:
                 return
-            rgb = to_rgb8(pixels, image.encoding)
+            try:
+                rgb = to_rgb8(*decode_camera_image(pixels, image.encoding))
+            except MessageError as exc:
+                self.drop('malformed_image', f'colour image: {exc}')
+                return
         if self.use_confidence:
             if confidence is None:
                 raise ValueError('use_confidence is true: on_frame needs the confidence')

@@ -1,10 +1,12 @@
 """Rectifier node: a drop-in for image_proc's RectifyNode, one instance per camera.
 
 Subscribes ``image`` (raw) and ``camera_info`` (matched by exact stamp); publishes
-``image_rect`` (mono: the input encoding for one-channel images, mono8 for colour ones) and,
-for colour input, ``image_rect_color`` (the input encoding). Parameters, as image_proc's:
-``queue_size`` (start-up only) and ``interpolation`` (a name or image_proc's integer code,
-changeable at runtime, applied from the next frame).
+``image_rect`` (mono: the input encoding for one-channel images, mono8 / mono16 for colour
+ones) and, for colour input, ``image_rect_color`` (the input encoding; ``bgr8`` / ``bgr16``
+for a Bayer mosaic or a YUV image, which are decoded first: demosaicing before the remap,
+never after). Parameters, as image_proc's: ``queue_size`` (start-up only),
+``interpolation`` (a name or image_proc's integer code) and ``debayer`` (image_proc's
+debayer node's codes), both changeable at runtime and applied from the next frame.
 
 Unlike image_proc, ``R`` is applied even when every distortion coefficient is zero, so a
 stereo pair whose only flaw is a relative rotation is still rectified.
@@ -25,9 +27,9 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.rectify import INTERPOLATIONS, Rectifier, interpolation_flag
-from depth_nodes.errors import CalibrationError, MessageError
+from depth_nodes.errors import CalibrationError, EncodingError, MessageError
 from depth_nodes.ros.camera_info import camera_info_to_model
-from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
+from depth_nodes.ros.image import DEBAYER_METHODS, array_to_image, message_pixels, to_gray
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 from depth_nodes.ros.workers import use_threads
@@ -48,6 +50,10 @@ PARAMETERS = [
               'Interpolation: ' + ', '.join(f'{n} ({f})' for n, f in INTERPOLATIONS.items())
               + '; a name or image_proc\'s integer code',
               dynamic_typing=True, check=_check_interpolation),
+    ParamSpec('debayer', 3, 'Demosaicing of Bayer images (image_proc\'s debayer codes): '
+              '0 bilinear, 1 edge-aware, 2 edge-aware weighted (as 1 here), 3 VNG (8-bit '
+              'only; 16-bit mosaics use edge-aware)', min(DEBAYER_METHODS),
+              max(DEBAYER_METHODS)),
     ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0 (or more '
               'than the cores): every core. '
               'A frame takes 5 - 20 ms here; under load a second thread mostly spins '
@@ -90,10 +96,6 @@ class RectifyNode(DepthNode):
             self.drop('uncalibrated', 'camera_info K is all zero: the camera is not '
                       'calibrated, nothing to rectify with')
             return
-        if image_msg.encoding not in ENCODINGS:
-            self.drop('unsupported_encoding', f'image encoding {image_msg.encoding!r} is not '
-                      f'supported (supported: {", ".join(ENCODINGS)})')
-            return
         try:
             model, delivered = self._calibration(info_msg)
         except CalibrationError as exc:
@@ -105,7 +107,10 @@ class RectifyNode(DepthNode):
                       f'(binning {model.binning_x}/{model.binning_y}, roi {model.roi[:4]})')
             return
         try:
-            raw = image_to_array(image_msg)
+            raw, encoding = message_pixels(image_msg, debayer=self.params.values['debayer'])
+        except EncodingError as exc:
+            self.drop('unsupported_encoding', str(exc))
+            return
         except MessageError as exc:
             self.drop('malformed_image', str(exc))
             return
@@ -114,11 +119,11 @@ class RectifyNode(DepthNode):
         except CalibrationError as exc:  # validated above; kept for a cache rebuild failing
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
             return
-        encoding = image_msg.encoding
         if rectified.ndim == 3:
             self.pub_rect_color.publish(array_to_image(rectified, encoding, image_msg.header))
+            mono = 'mono16' if rectified.dtype == np.uint16 else 'mono8'
             self.pub_rect.publish(
-                array_to_image(to_gray(rectified, encoding), 'mono8', image_msg.header))
+                array_to_image(to_gray(rectified, encoding), mono, image_msg.header))
         else:
             self.pub_rect.publish(array_to_image(rectified, encoding, image_msg.header))
 

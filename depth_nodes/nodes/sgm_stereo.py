@@ -50,9 +50,8 @@ from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, SUBPIXEL_STEP
-from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity
-from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
+from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 from depth_nodes.ros.workers import OrderedWorkers, use_threads
@@ -215,16 +214,9 @@ class SgmStereoNode(DepthNode):
             self.drop('encoding_mismatch', f'left image is {left_msg.encoding}, right image '
                       f'{right_msg.encoding}')
             return None
-        if left_msg.encoding not in ENCODINGS or left_msg.encoding == '32FC1':
-            self.drop('unsupported_encoding', f'image encoding {left_msg.encoding!r} is not a '
-                      'camera image (mono8, mono16, rgb8, bgr8, rgba8, bgra8)')
-            return None
-        try:
-            return tuple(to_gray(image_to_array(m), m.encoding)  # type: ignore[return-value]
-                         for m in (left_msg, right_msg))
-        except MessageError as exc:
-            self.drop('malformed_image', str(exc))
-            return None
+        left = self.gray_image(left_msg, 'left image')
+        right = self.gray_image(right_msg, 'right image') if left is not None else None
+        return None if right is None else (left, right)
 
     def on_frame(self, left_msg: Image, left_info: CameraInfo, right_msg: Image,
                  right_info: CameraInfo) -> None:

@@ -58,7 +58,7 @@ from depth_nodes.core.structured_light.framing import SequenceAssembler, parse_t
 from depth_nodes.core.structured_light.reconstruct import reconstruct
 from depth_nodes.errors import CalibrationError, ConfigError, MessageError
 from depth_nodes.ros.camera_info import camera_info_to_model
-from depth_nodes.ros.image import ENCODINGS, array_to_image, image_to_array, to_gray
+from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 from depth_nodes.ros.pointcloud import build_pointcloud
@@ -270,15 +270,7 @@ class StructuredLightNode(DepthNode):
         self._decode(frames, pattern_set, values)
 
     def _grey(self, image: Image) -> NDArray[Any] | None:
-        if image.encoding not in ENCODINGS or image.encoding == '32FC1':
-            self.drop('unsupported_encoding', f'image encoding {image.encoding!r} is not '
-                      'supported (mono8, mono16 or colour)')
-            return None
-        try:
-            return to_gray(image_to_array(image), image.encoding)
-        except MessageError as exc:
-            self.drop('malformed_image', str(exc))
-            return None
+        return self.gray_image(image, 'pattern image')
 
     def _geometry_for(self, info: CameraInfo) -> ProjectorGeometry | None:
         proj = self.projector_info

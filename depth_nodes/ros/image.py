@@ -10,6 +10,12 @@ Decisions:
     * An image with zero width or height reads as an empty array of the right shape and
       dtype, whatever ``data`` holds.
     * ``8UC3`` is treated as BGR (as cv_bridge does) by :func:`to_gray` / :func:`to_rgb8`.
+    * Camera-native encodings (:data:`CAMERA_ENCODINGS`: Bayer mosaics in the four orders,
+      8 and 16 bit; ``yuv422`` (UYVY), ``yuv422_yuy2`` (YUYV), ``nv21``) read as they are
+      stored; :func:`decode_camera_image` turns them into ``bgr8`` / ``bgr16`` (as
+      image_proc's debayer node does), and every consumer of pixels calls it first, so
+      demosaicing happens before rectification, never after. A Bayer or NV21 image must
+      have an even width and height, a YUV 4:2:2 image an even width.
 """
 
 from __future__ import annotations
@@ -35,7 +41,38 @@ ENCODINGS: dict[str, tuple[np.dtype[Any], int]] = {
     '8UC3': (np.dtype(np.uint8), 3),
     '16UC1': (np.dtype(np.uint16), 1),
     '32FC1': (np.dtype(np.float32), 1),
+    'rgb16': (np.dtype(np.uint16), 3),
+    'bgr16': (np.dtype(np.uint16), 3),
+    'rgba16': (np.dtype(np.uint16), 4),
+    'bgra16': (np.dtype(np.uint16), 4),
 }
+
+#: Bayer orders (ROS names the 2x2 tile from the top-left pixel) -> OpenCV's conversion
+#: codes of the same tile: (to BGR bilinear, edge-aware, VNG, to grey).
+_BAYER_ORDERS = {
+    'rggb': 'RGGB', 'bggr': 'BGGR', 'gbrg': 'GBRG', 'grbg': 'GRBG',
+}
+#: Debayering methods, image_proc's debayer node's codes: 0 bilinear, 1 edge-aware,
+#: 2 edge-aware weighted (OpenCV has one edge-aware method: the same), 3 VNG (8 bit only;
+#: 16-bit images fall back to edge-aware).
+DEBAYER_METHODS = {0: '', 1: '_EA', 2: '_EA', 3: '_VNG'}
+
+
+def _bayer(tile: str, bits: int) -> tuple[str, np.dtype[Any]]:
+    return f'bayer_{tile}{bits}', np.dtype(np.uint8 if bits == 8 else np.uint16)
+
+
+#: Camera-native encodings: stored as ``(dtype, channels)`` like :data:`ENCODINGS`, turned
+#: into bgr8 / bgr16 by :func:`decode_camera_image`.
+CAMERA_ENCODINGS: dict[str, tuple[np.dtype[Any], int]] = {
+    **{name: (dtype, 1) for tile in _BAYER_ORDERS for name, dtype in
+       (_bayer(tile, 8), _bayer(tile, 16))},
+    'yuv422': (np.dtype(np.uint8), 2),
+    'yuv422_yuy2': (np.dtype(np.uint8), 2),
+    'nv21': (np.dtype(np.uint8), 1),
+}
+#: Every encoding :func:`image_to_array` reads.
+READABLE_ENCODINGS = {**ENCODINGS, **CAMERA_ENCODINGS}
 
 _TO_GRAY = {
     'rgb8': cv2.COLOR_RGB2GRAY,
@@ -43,27 +80,34 @@ _TO_GRAY = {
     '8UC3': cv2.COLOR_BGR2GRAY,
     'rgba8': cv2.COLOR_RGBA2GRAY,
     'bgra8': cv2.COLOR_BGRA2GRAY,
+    'rgb16': cv2.COLOR_RGB2GRAY,
+    'bgr16': cv2.COLOR_BGR2GRAY,
+    'rgba16': cv2.COLOR_RGBA2GRAY,
+    'bgra16': cv2.COLOR_BGRA2GRAY,
 }
 _TO_RGB = {
     'bgr8': cv2.COLOR_BGR2RGB,
     '8UC3': cv2.COLOR_BGR2RGB,
     'rgba8': cv2.COLOR_RGBA2RGB,
     'bgra8': cv2.COLOR_BGRA2RGB,
+    'bgr16': cv2.COLOR_BGR2RGB,
+    'rgba16': cv2.COLOR_RGBA2RGB,
+    'bgra16': cv2.COLOR_BGRA2RGB,
 }
 
 
 def encoding_info(encoding: str) -> tuple[np.dtype[Any], int]:
-    """Return (channel dtype, channels) of ``encoding``.
+    """Return (channel dtype, channels) of ``encoding`` as stored in a message.
 
     Raises:
-        EncodingError: The encoding is not in :data:`ENCODINGS`.
+        EncodingError: The encoding is not in :data:`READABLE_ENCODINGS`.
     """
     try:
-        return ENCODINGS[encoding]
+        return READABLE_ENCODINGS[encoding]
     except KeyError:
         raise EncodingError(
-            f'unsupported image encoding {encoding!r}; supported: {", ".join(ENCODINGS)}'
-        ) from None
+            f'unsupported image encoding {encoding!r}; supported: '
+            f'{", ".join(READABLE_ENCODINGS)}') from None
 
 
 def buffer_as_uint8(data: Any) -> NDArray[np.uint8]:
@@ -85,9 +129,10 @@ def image_to_array(msg: Any) -> NDArray[Any]:
 
     Returns:
         (H, W) for one channel, (H, W, C) otherwise, of the encoding's dtype in native byte
-        order. For little-endian data this is a strided view of ``msg.data`` (row padding
-        skipped; read-only when ``data`` is ``bytes``); big-endian multi-byte data is
-        byte-swapped into a new array.
+        order (``nv21``: (H * 3 / 2, W), the Y plane above the V/U rows; convert camera
+        encodings with :func:`decode_camera_image`). For little-endian data this is a
+        strided view of ``msg.data`` (row padding skipped; read-only when ``data`` is
+        ``bytes``); big-endian multi-byte data is byte-swapped into a new array.
 
     Raises:
         EncodingError: Unknown encoding.
@@ -96,6 +141,8 @@ def image_to_array(msg: Any) -> NDArray[Any]:
     """
     dtype, channels = encoding_info(msg.encoding)
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if msg.encoding == 'nv21':  # a full-size Y plane, then interleaved V/U at half size
+        height += height // 2
     shape = (height, width) if channels == 1 else (height, width, channels)
     if height <= 0 or width <= 0:
         return np.empty((max(height, 0), max(width, 0), channels)[: len(shape)], dtype=dtype)
@@ -137,6 +184,8 @@ def array_to_image(arr: NDArray[Any], encoding: str, header: Any = None) -> Imag
     """
     dtype, channels = check_array(arr, encoding)
     height, width = arr.shape[:2]
+    if encoding == 'nv21':  # the stored rows are the Y plane and the V/U rows below it
+        height = height * 2 // 3
     msg = Image()
     if header is not None:
         msg.header = header
@@ -168,6 +217,11 @@ def check_array(arr: NDArray[Any], encoding: str) -> tuple[np.dtype[Any], int]:
     return dtype, channels
 
 
+def _plain(encoding: str) -> None:
+    if encoding in CAMERA_ENCODINGS:
+        raise EncodingError(f'{encoding} pixels must be decoded first (decode_camera_image)')
+
+
 def to_gray(arr: NDArray[Any], encoding: str) -> NDArray[Any]:
     """Return a 2-D single-channel image: colour -> luminance (cv2), mono passed through.
 
@@ -176,12 +230,13 @@ def to_gray(arr: NDArray[Any], encoding: str) -> NDArray[Any]:
         encoding: A key of :data:`ENCODINGS`.
 
     Returns:
-        (H, W) array: uint8 for colour input, the input's dtype for one-channel input.
+        (H, W) array of the input's dtype.
 
     Raises:
         EncodingError / MessageError: As :func:`check_array`.
     """
     _, channels = check_array(arr, encoding)
+    _plain(encoding)
     if channels == 1:
         return arr.reshape(arr.shape[:2])
     return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), _TO_GRAY[encoding]))
@@ -203,13 +258,100 @@ def to_rgb8(arr: NDArray[Any], encoding: str) -> NDArray[np.uint8]:
         EncodingError: 32FC1, or as :func:`check_array`.
     """
     dtype, channels = check_array(arr, encoding)
+    _plain(encoding)
     if encoding == 'rgb8':
         return arr
     if channels > 1:
-        return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), _TO_RGB[encoding]))
+        rgb = arr if encoding == 'rgb16' else cv2.cvtColor(np.ascontiguousarray(arr),
+                                                           _TO_RGB[encoding])
+        if dtype == np.uint16:
+            rgb = np.rint(np.asarray(rgb) / 257.0).astype(np.uint8)
+        return np.asarray(rgb)
     if dtype == np.float32:
         raise EncodingError(f'cannot convert {encoding} to rgb8: no defined colour scale')
     mono = arr.reshape(arr.shape[:2])
     if dtype == np.uint16:
         mono = np.rint(mono / 257.0).astype(np.uint8)
     return np.repeat(mono[:, :, None], 3, axis=2)
+
+
+def decode_camera_image(arr: NDArray[Any], encoding: str, *,
+                        debayer: int = 3) -> tuple[NDArray[Any], str]:
+    """Turn a camera-native image (:data:`CAMERA_ENCODINGS`) into ``bgr8`` (``bgr16`` for a
+    16-bit Bayer mosaic); any other encoding is returned as it is.
+
+    Args:
+        arr: The stored pixels, as :func:`image_to_array` returns them.
+        encoding: The message's encoding.
+        debayer: A key of :data:`DEBAYER_METHODS` (image_proc's debayer codes).
+
+    Returns:
+        ``(pixels, encoding)``.
+
+    Raises:
+        MessageError: A Bayer or NV21 image with an odd width or height, a YUV 4:2:2 image
+            with an odd width (no real sensor delivers those; the sample layout is broken).
+        EncodingError: An unknown ``debayer`` method.
+    """
+    if encoding not in CAMERA_ENCODINGS:
+        return arr, encoding
+    if encoding.startswith('bayer_'):
+        h, w = arr.shape[:2]
+        if h % 2 or w % 2:
+            raise MessageError(f'{encoding} image is {w}x{h}: a Bayer mosaic needs an even '
+                               'width and height')
+        if debayer not in DEBAYER_METHODS:
+            raise EncodingError(f'debayer method {debayer!r} is not one of '
+                                f'{", ".join(map(str, DEBAYER_METHODS))}')
+        tile = _BAYER_ORDERS[encoding[6:10]]
+        sixteen = arr.dtype == np.uint16
+        suffix = DEBAYER_METHODS[debayer]
+        if sixteen and suffix == '_VNG':
+            suffix = '_EA'  # OpenCV's VNG takes 8-bit mosaics only
+        code = getattr(cv2, f'COLOR_Bayer{tile}2BGR{suffix}')
+        return (np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), code)),
+                'bgr16' if sixteen else 'bgr8')
+    if encoding == 'nv21':
+        h = arr.shape[0] * 2 // 3
+        w = arr.shape[1]
+        if h % 2 or w % 2 or arr.shape[0] != h + h // 2:
+            raise MessageError(f'nv21 image is {w}x{h}: NV21 needs an even width and height')
+        return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_YUV2BGR_NV21)), 'bgr8'
+    if arr.shape[1] % 2:
+        raise MessageError(f'{encoding} image is {arr.shape[1]}x{arr.shape[0]}: YUV 4:2:2 '
+                           'needs an even width')
+    code = cv2.COLOR_YUV2BGR_UYVY if encoding == 'yuv422' else cv2.COLOR_YUV2BGR_YUY2
+    return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), code)), 'bgr8'
+
+
+def message_pixels(msg: Any, *, debayer: int = 3) -> tuple[NDArray[Any], str]:
+    """The pixels of an Image message in a plain encoding (:data:`ENCODINGS`): camera-native
+    encodings are decoded (:func:`decode_camera_image`).
+
+    Raises:
+        EncodingError / MessageError: As :func:`image_to_array` and
+            :func:`decode_camera_image`.
+    """
+    return decode_camera_image(image_to_array(msg), msg.encoding, debayer=debayer)
+
+
+def gray_pixels(msg: Any) -> NDArray[Any]:
+    """A camera image message as one grey channel (uint8, or uint16 for 16-bit input); a
+    Bayer mosaic is interpolated straight to grey.
+
+    Raises:
+        EncodingError: A depth or float image (32FC1, 16UC1 is taken as mono16), or as
+            :func:`message_pixels`.
+    """
+    if msg.encoding == '32FC1':
+        raise EncodingError('a 32FC1 image is not a camera image')
+    arr = image_to_array(msg)
+    if msg.encoding.startswith('bayer_'):
+        h, w = arr.shape[:2]
+        if h % 2 or w % 2:
+            raise MessageError(f'{msg.encoding} image is {w}x{h}: a Bayer mosaic needs an '
+                               'even width and height')
+        code = getattr(cv2, f'COLOR_Bayer{_BAYER_ORDERS[msg.encoding[6:10]]}2GRAY')
+        return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), code))
+    pixels, encoding = decode_camera_image(arr, msg.encoding)
+    return to_gray(pixels, encoding)

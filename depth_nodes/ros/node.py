@@ -40,10 +40,16 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from depth_nodes.core.camera import StereoModel
-from depth_nodes.errors import CalibrationError, DepthNodesError, MessageError, UncalibratedError
+from depth_nodes.errors import (
+    CalibrationError,
+    DepthNodesError,
+    EncodingError,
+    MessageError,
+    UncalibratedError,
+)
 from depth_nodes.ros.camera_info import StereoInfoCache
 from depth_nodes.ros.dds import use_large_message_profile
-from depth_nodes.ros.image import image_to_array
+from depth_nodes.ros.image import gray_pixels, image_to_array
 from depth_nodes.ros.memory import keep_freed_memory
 from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchronizer
 
@@ -366,6 +372,17 @@ class DepthNode(Node):
         except MessageError as exc:
             self.drop('malformed_image', f'{what}: {exc}')
             return None
+
+    def gray_image(self, msg: Any, what: str) -> Any:
+        """A camera image as one grey channel (any camera encoding, Bayer and YUV decoded),
+        or None after counting the drop: ``unsupported_encoding`` or ``malformed_image``."""
+        try:
+            return gray_pixels(msg)
+        except EncodingError as exc:
+            self.drop('unsupported_encoding', f'{what}: {exc}')
+        except MessageError as exc:
+            self.drop('malformed_image', f'{what}: {exc}')
+        return None
 
     def stereo_model(self, left_info: Any, right_info: Any) -> StereoModel | None:
         """The stereo geometry of a CameraInfo pair (converted again only when one changes),
