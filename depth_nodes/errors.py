@@ -23,6 +23,15 @@ class EncodingError(MessageError):
     """An image encoding that is unknown or not supported where it was used."""
 
 
+class DecodeError(MessageError):
+    """Compressed image data that cannot be decoded (damaged, truncated, too large, or not
+    what its format says)."""
+
+
+class UnsupportedFormatError(EncodingError):
+    """A compressed image format (or image transport) that this package cannot read."""
+
+
 class CalibrationError(DepthNodesError):
     """A camera calibration that cannot be used (zero or non-finite K, wrong D length...)."""
 

@@ -17,12 +17,12 @@ from depth_nodes.ros.image import (
     DEBAYER_METHODS,
     array_to_image,
     decode_camera_image,
-    gray_pixels,
     image_to_array,
-    message_pixels,
     to_gray,
     to_rgb8,
 )
+from depth_nodes.ros.transport import gray_image as gray_pixels
+from depth_nodes.ros.transport import image_pixels as message_pixels
 
 #: Mean |decoded - original| allowed (grey levels of 255) away from a 4 px border: a smooth
 #: image loses little to interpolation; a wrong order swaps red and blue by ~100 levels.
@@ -66,7 +66,8 @@ def test_bayer_mosaics_decode_to_the_colour_they_sampled(order: str, bits: int,
     msg = array_to_image(_mosaic(bgr, order), encoding)
     pixels, out_encoding = message_pixels(msg, debayer=method)
     assert out_encoding == ('bgr8' if bits == 8 else 'bgr16')
-    assert pixels.dtype == bgr.dtype and pixels.shape == bgr.shape
+    assert pixels.dtype == bgr.dtype
+    assert pixels.shape == bgr.shape
     assert _mean_error(pixels, bgr, 257.0 if bits == 16 else 1.0) < TOLERANCE
     # the same mosaic read as another order is far off: the test can tell orders apart
     wrong = {'rggb': 'bggr', 'bggr': 'rggb', 'gbrg': 'grbg', 'grbg': 'gbrg'}[order]
@@ -98,7 +99,7 @@ def _uyvy(bgr: np.ndarray, yuy2: bool) -> np.ndarray:
     y = yuv[:, :, 0]
     u = (yuv[:, 0::2, 1] + yuv[:, 1::2, 1]) / 2
     v = (yuv[:, 0::2, 2] + yuv[:, 1::2, 2]) / 2
-    out = np.empty(bgr.shape[:2] + (2,), np.float64)
+    out = np.empty((*bgr.shape[:2], 2), np.float64)
     chroma, luma = (1, 0) if yuy2 else (0, 1)
     out[:, 0::2, chroma], out[:, 1::2, chroma] = u, v
     out[:, :, luma] = y
@@ -144,7 +145,7 @@ def test_sixteen_bit_colour_to_grey_and_rgb8() -> None:
                        cv2.cvtColor(bgr8, cv2.COLOR_BGR2GRAY)) < 1.0
 
 
-@pytest.mark.parametrize('encoding, shape, match', [
+@pytest.mark.parametrize(('encoding', 'shape', 'match'), [
     ('bayer_rggb8', (47, 64), r'bayer_rggb8 image is 64x47: a Bayer mosaic needs an even'),
     ('bayer_gbrg16', (48, 63), r'bayer_gbrg16 image is 63x48'),
     ('yuv422', (48, 63, 2), r'yuv422 image is 63x48: YUV 4:2:2 needs an even width'),

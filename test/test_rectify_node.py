@@ -216,3 +216,59 @@ def test_node_runs_live_over_dds(context: Context) -> None:
         executor.shutdown()
         live.destroy_node()
         peer.destroy_node()
+
+
+@pytest.fixture
+def compressed_node(context: Context) -> Any:
+    n = RectifyNode(context=context,
+                    parameter_overrides=[Parameter('image_transport', value='compressed')])
+    n.outbox = []
+    n.sink = lambda topic, msg: n.outbox.append((topic, msg))
+    yield n
+    n.destroy_node()
+
+
+def _stamped(msg: Any, sec: int) -> Any:
+    msg.header.stamp.sec = sec
+    return msg
+
+
+def test_compressed_transport_subscribes_image_compressed_and_matches_raw(
+        compressed_node: Any) -> None:
+    """image_transport: compressed reads sensor_msgs/CompressedImage on image/compressed;
+    a PNG gives the very output of the raw image, a damaged JPEG is one counted frame."""
+    from sensor_msgs.msg import CompressedImage
+
+    from depth_nodes.ros.transport import compress_image
+
+    node = compressed_node
+    image_spec, info_spec = node.inputs
+    assert image_spec.topic == '/image/compressed'
+    assert image_spec.msg_type is CompressedImage
+    info = _pair()[1]
+    png = compress_image(FRAME.left_raw, 'rgb8', codec='png')
+    image_spec.callback(_stamped(png, 1))
+    info_spec.callback(_stamped(info, 1))
+    expected = Rectifier().rectify(FRAME.left_raw, FRAME.left_camera)
+    assert [t for t, _ in node.outbox] == ['/image_rect_color', '/image_rect']
+    np.testing.assert_array_equal(image_to_array(node.outbox[0][1]), expected)
+    jpeg = compress_image(FRAME.left_raw, 'rgb8', codec='jpeg')
+    jpeg.data = bytes(jpeg.data)[:200]
+    for sec, msg in ((2, jpeg), (3, compress_image(FRAME.left_raw, 'rgb8', codec='png'))):
+        image_spec.callback(_stamped(msg, sec))
+        info_spec.callback(_stamped(_pair()[1], sec))
+    assert node.drops == {'decode_failed': 1}  # once: not also as an unmatched frame
+    assert len(node.outbox) == 4
+    foreign = CompressedImage(format='rgb8; h264 compressed rgb8', data=bytes(png.data))
+    image_spec.callback(_stamped(foreign, 4))
+    info_spec.callback(_stamped(_pair()[1], 4))
+    assert node.drops == {'decode_failed': 1, 'unsupported_format': 1}
+
+
+def test_an_unknown_image_transport_is_refused_at_start_up(context: Context) -> None:
+    from depth_nodes.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"image_transport='theora' rejected: must be one of "
+                                          r'raw, compressed, compressedDepth'):
+        RectifyNode(context=context,
+                    parameter_overrides=[Parameter('image_transport', value='theora')])

@@ -65,7 +65,7 @@ def test_good_frame_publishes_three_outputs(node: Any) -> None:
 
 @pytest.mark.parametrize(('changes', 'reason'), [
     ({'right': FRAME.right_rect_gt[:, :150]}, 'size_mismatch'),
-    ({'right': np.dstack([FRAME.right_rect_gt] * 3), 'right_encoding': 'rgb8'},
+    ({'right': FRAME.right_rect_gt.astype(np.uint16) * 257, 'right_encoding': 'mono16'},
      'encoding_mismatch'),
     ({'left': FRAME.left_rect_gt.astype(np.float32), 'left_encoding': '32FC1',
       'right': FRAME.right_rect_gt.astype(np.float32), 'right_encoding': '32FC1'},
@@ -274,3 +274,29 @@ def test_opencv_backend_matches_stereosgbm(context: Context) -> None:
         assert got.delta_d == pytest.approx(1 / 16)
     finally:
         node.destroy_node()
+
+
+def test_compressed_and_bayer_inputs_match_the_raw_grey_pair(context: Context) -> None:
+    """image_transport: compressed takes CompressedImage on left|right/image_rect/compressed;
+    lossless PNG gives the raw pair's disparity bit for bit."""
+    from depth_nodes.ros.transport import compress_image
+
+    n = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('image_transport', value='compressed')])
+    n.outbox = {}
+    n.sink = lambda topic, msg: n.outbox.__setitem__(topic, msg)
+    try:
+        assert [spec.topic for spec in n.inputs] == [
+            '/left/image_rect/compressed', '/left/camera_info', '/right/image_rect/compressed',
+            '/right/camera_info']
+        msgs = _inputs()
+        msgs[0] = compress_image(FRAME.left_rect_gt, 'mono8', codec='png')
+        msgs[2] = compress_image(FRAME.right_rect_gt, 'mono8', codec='png')
+        n.on_frame(*msgs)
+        expected = SgmMatcher(sgm_params(n.params.values)).match(FRAME.left_rect_gt,
+                                                                  FRAME.right_rect_gt)
+        np.testing.assert_array_equal(read_disparity(n.outbox['/disparity']).disparity,
+                                      expected.disparity)
+        assert n.drops == {}
+    finally:
+        n.destroy_node()

@@ -152,9 +152,10 @@ class CrossCheckNode(DepthNode):
                       f'{right.max_disparity:g}, disparity {left.min_disparity:g}..'
                       f'{left.max_disparity:g}')
             return
-        ratio = self.frame_image(cost_msg, 'cost_ratio', shape, ('32FC1',))
-        if ratio is None:
+        cost = self.frame_image(cost_msg, 'cost_ratio', shape, ('32FC1',))
+        if cost is None:
             return
+        ratio = cost[0]
         result = cross_check(
             left.disparity, right.disparity, ratio,
             disp12_max_diff=values['disp12_max_diff'], speckle_size=values['speckle_size'],

@@ -41,15 +41,16 @@ from stereo_msgs.msg import DisparityImage
 from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reproject_disparity
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.image import CAMERA_ENCODINGS, array_to_image, decode_camera_image, to_rgb8
+from depth_nodes.ros.image import array_to_image, to_rgb8
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
 from depth_nodes.ros.pointcloud import build_pointcloud
 from depth_nodes.ros.workers import use_threads
 
 #: Colour encodings the cloud's rgb can be taken from.
+#: Colour images accepted, after camera encodings (Bayer, YUV) are decoded to bgr8 / bgr16.
 COLOR_ENCODINGS = ('mono8', 'mono16', 'rgb8', 'bgr8', 'rgba8', 'bgra8', 'rgb16', 'bgr16',
-                   'rgba16', 'bgra16', *CAMERA_ENCODINGS)
+                   'rgba16', 'bgra16')
 #: Names accepted in ``extra_fields``.
 EXTRA_FIELDS = ('confidence', 'depth_std')
 DEPTH_ENCODINGS = ('32FC1', '16UC1')
@@ -75,6 +76,7 @@ def _check_depth_encoding(value: str) -> str | None:
 
 
 PARAMETERS = [
+    IMAGE_TRANSPORT,
     ParamSpec('queue_size', 5, 'Synchroniser queue of the inputs', 1, 1000, read_only=True),
     ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
               'instead of exact stamps', read_only=True),
@@ -126,11 +128,10 @@ class PointCloudNode(DepthNode):
         self.use_confidence: bool = values['use_confidence']
         self.pub_points = self.add_output(PointCloud2, 'points2')
         self.pub_depth = self.add_output(Image, 'depth')
-        inputs: list[tuple[type, str]] = [(DisparityImage, 'disparity'),
-                                          (CameraInfo, 'left/camera_info'),
-                                          (CameraInfo, 'right/camera_info')]
+        inputs: list[Any] = [(DisparityImage, 'disparity'), (CameraInfo, 'left/camera_info'),
+                             (CameraInfo, 'right/camera_info')]
         if self.use_color:
-            inputs.append((Image, 'left/image_rect_color'))
+            inputs.append((Image, 'left/image_rect_color', values['image_transport']))
         if self.use_confidence:
             inputs.append((Image, 'confidence'))
         tolerance = values['approximate_sync_tolerance_seconds']
@@ -172,20 +173,18 @@ class PointCloudNode(DepthNode):
         if self.use_color:
             if image is None:
                 raise ValueError('use_color is true: on_frame needs the colour image')
-            pixels = self.frame_image(image, 'colour image', shape, COLOR_ENCODINGS)
-            if pixels is None:
+            colour = self.frame_image(image, 'colour image', shape, COLOR_ENCODINGS,
+                                      camera=True)
+            if colour is None:
                 return
-            try:
-                rgb = to_rgb8(*decode_camera_image(pixels, image.encoding))
-            except MessageError as exc:
-                self.drop('malformed_image', f'colour image: {exc}')
-                return
+            rgb = to_rgb8(*colour)
         if self.use_confidence:
             if confidence is None:
                 raise ValueError('use_confidence is true: on_frame needs the confidence')
-            conf = self.frame_image(confidence, 'confidence', shape, ('32FC1',))
-            if conf is None:
+            conf_pixels = self.frame_image(confidence, 'confidence', shape, ('32FC1',))
+            if conf_pixels is None:
                 return
+            conf = conf_pixels[0]
         result = reproject_disparity(
             disparity, stereo, min_range=values['min_range'], max_range=values['max_range'],
             confidence=conf, min_confidence=values['min_confidence'])

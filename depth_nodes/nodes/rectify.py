@@ -27,11 +27,12 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.rectify import INTERPOLATIONS, Rectifier, interpolation_flag
-from depth_nodes.errors import CalibrationError, EncodingError, MessageError
+from depth_nodes.errors import CalibrationError, MessageError
 from depth_nodes.ros.camera_info import camera_info_to_model
-from depth_nodes.ros.image import DEBAYER_METHODS, array_to_image, message_pixels, to_gray
+from depth_nodes.ros.image import DEBAYER_METHODS, array_to_image, to_gray
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
+from depth_nodes.ros.transport import image_pixels
 from depth_nodes.ros.workers import use_threads
 
 
@@ -44,6 +45,7 @@ def _check_interpolation(value: Any) -> str | None:
 
 
 PARAMETERS = [
+    IMAGE_TRANSPORT,
     ParamSpec('queue_size', 5, 'Queue of the image / camera_info stamp synchroniser',
               min_value=1, max_value=1000, read_only=True),
     ParamSpec('interpolation', 1,
@@ -72,7 +74,8 @@ class RectifyNode(DepthNode):
         self._models: tuple[CameraModel, CameraModel]
         self.pub_rect = self.add_output(Image, 'image_rect')
         self.pub_rect_color = self.add_output(Image, 'image_rect_color')
-        self.add_synced_inputs([(Image, 'image'), (CameraInfo, 'camera_info')], self.on_frame,
+        self.add_synced_inputs([(Image, 'image', self.params.values['image_transport']),
+                                (CameraInfo, 'camera_info')], self.on_frame,
                                queue_size=self.params.values['queue_size'])
 
     def _calibration(self, info_msg: CameraInfo) -> tuple[CameraModel, CameraModel]:
@@ -88,7 +91,7 @@ class RectifyNode(DepthNode):
             self._info_key = key
         return self._models
 
-    def on_frame(self, image_msg: Image, info_msg: CameraInfo) -> None:
+    def on_frame(self, image_msg: Any, info_msg: CameraInfo) -> None:
         """Rectify one raw image with the CameraInfo of the same stamp."""
         interpolation = self.params.values['interpolation']
         use_threads(self.params.values['threads'])
@@ -101,18 +104,15 @@ class RectifyNode(DepthNode):
         except CalibrationError as exc:
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
             return
-        if (image_msg.width, image_msg.height) != (delivered.width, delivered.height):
-            self.drop('size_mismatch', f'image is {image_msg.width}x{image_msg.height} but '
+        try:
+            raw, encoding = image_pixels(image_msg, debayer=self.params.values['debayer'])
+        except MessageError as exc:
+            self.decoding_failed(exc, 'image')
+            return
+        if raw.shape[:2] != (delivered.height, delivered.width):
+            self.drop('size_mismatch', f'image is {raw.shape[1]}x{raw.shape[0]} but '
                       f'camera_info describes {delivered.width}x{delivered.height} '
                       f'(binning {model.binning_x}/{model.binning_y}, roi {model.roi[:4]})')
-            return
-        try:
-            raw, encoding = message_pixels(image_msg, debayer=self.params.values['debayer'])
-        except EncodingError as exc:
-            self.drop('unsupported_encoding', str(exc))
-            return
-        except MessageError as exc:
-            self.drop('malformed_image', str(exc))
             return
         try:
             rectified = self.rectifier.rectify(raw, model, interpolation, reuse_output=True)

@@ -53,7 +53,7 @@ from depth_nodes.core.sgm.select import SUBPIXEL_MODES, SUBPIXEL_STEP
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
 from depth_nodes.ros.workers import OrderedWorkers, use_threads
 
 BACKENDS = ('census_sgm', 'opencv')
@@ -74,6 +74,7 @@ def _paths(value: int) -> str | None:
 
 
 PARAMETERS = [
+    IMAGE_TRANSPORT,
     ParamSpec('queue_size', 5, 'Synchroniser queue of the four inputs', 1, 1000,
               read_only=True),
     ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
@@ -179,6 +180,10 @@ def opencv_settings(values: Mapping[str, Any]) -> SgbmSettings:
         disp12_max_diff=values['disp12_max_diff'], prefilter_cap=values['prefilter_cap'])
 
 
+def _encoding(msg: Any) -> str:
+    return str(getattr(msg, 'encoding', None) or getattr(msg, 'format', '?'))
+
+
 class SgmStereoNode(DepthNode):
     """Census SGM on rectified stereo pairs; publishes both views' disparity and cost ratio."""
 
@@ -199,26 +204,32 @@ class SgmStereoNode(DepthNode):
         self.pub_cost_ratio = self.add_output(Image, 'cost_ratio')
         tolerance = values['approximate_sync_tolerance_seconds']
         self.add_synced_inputs(
-            [(Image, 'left/image_rect'), (CameraInfo, 'left/camera_info'),
-             (Image, 'right/image_rect'), (CameraInfo, 'right/camera_info')],
+            [(Image, 'left/image_rect', values['image_transport']),
+             (CameraInfo, 'left/camera_info'),
+             (Image, 'right/image_rect', values['image_transport']),
+             (CameraInfo, 'right/camera_info')],
             self.on_frame, queue_size=values['queue_size'],
             approximate=values['approximate_sync'], max_interval=tolerance or None)
 
-    def _grey_pair(self, left_msg: Image, right_msg: Image) -> tuple[Any, Any] | None:
-        """Both images as grey arrays, or None after counting the reason."""
-        if (left_msg.width, left_msg.height) != (right_msg.width, right_msg.height):
-            self.drop('size_mismatch', f'left image is {left_msg.width}x{left_msg.height}, '
-                      f'right image {right_msg.width}x{right_msg.height}')
-            return None
-        if left_msg.encoding != right_msg.encoding:
-            self.drop('encoding_mismatch', f'left image is {left_msg.encoding}, right image '
-                      f'{right_msg.encoding}')
-            return None
+    def _grey_pair(self, left_msg: Any, right_msg: Any) -> tuple[Any, Any] | None:
+        """Both images (raw or compressed, any camera encoding) as grey arrays of one size
+        and depth, or None after counting the reason."""
         left = self.gray_image(left_msg, 'left image')
         right = self.gray_image(right_msg, 'right image') if left is not None else None
-        return None if right is None else (left, right)
+        if right is None:
+            return None
+        if left.shape != right.shape:
+            self.drop('size_mismatch', f'left image is {left.shape[1]}x{left.shape[0]}, '
+                      f'right image {right.shape[1]}x{right.shape[0]}')
+            return None
+        if left.dtype != right.dtype:
+            self.drop('encoding_mismatch', f'left image has {left.dtype} samples, the right '
+                      f'one {right.dtype} (left {_encoding(left_msg)}, right '
+                      f'{_encoding(right_msg)})')
+            return None
+        return left, right
 
-    def on_frame(self, left_msg: Image, left_info: CameraInfo, right_msg: Image,
+    def on_frame(self, left_msg: Any, left_info: CameraInfo, right_msg: Any,
                  right_info: CameraInfo) -> None:
         """Match one synchronised stereo pair."""
         values = self.params.values

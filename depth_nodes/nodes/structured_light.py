@@ -60,7 +60,7 @@ from depth_nodes.errors import CalibrationError, ConfigError, MessageError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
 from depth_nodes.ros.pointcloud import build_pointcloud
 from depth_nodes.ros.sync import stamp_to_ns
 
@@ -81,6 +81,7 @@ def _cross_check(values: Mapping[str, Any]) -> str | None:
 
 
 PARAMETERS = [
+    IMAGE_TRANSPORT,
     ParamSpec('mode', 'phase', 'Pattern set: gray, phase (Gray code + N-step phase shift), '
               'opencv (cv2.structured_light.GrayCodePattern order + black, white) or speckle',
               check=_one_of(MODES)),
@@ -135,7 +136,8 @@ class StructuredLightNode(DepthNode):
         self.pub_depth = self.add_output(Image, 'depth')
         self.pub_points = self.add_output(PointCloud2, 'points2')
         self.pub_confidence = self.add_output(Image, 'confidence')
-        self.add_synced_inputs([(Image, 'image'), (CameraInfo, 'camera_info')], self.on_frame,
+        self.add_synced_inputs([(Image, 'image', self.params.values['image_transport']),
+                                (CameraInfo, 'camera_info')], self.on_frame,
                                queue_size=self.queue_size)
         self.add_input(Header, 'pattern', self.on_tag)
         self._last_sequence_frame = time.monotonic()

@@ -13,8 +13,9 @@ Decisions:
     * Camera-native encodings (:data:`CAMERA_ENCODINGS`: Bayer mosaics in the four orders,
       8 and 16 bit; ``yuv422`` (UYVY), ``yuv422_yuy2`` (YUYV), ``nv21``) read as they are
       stored; :func:`decode_camera_image` turns them into ``bgr8`` / ``bgr16`` (as
-      image_proc's debayer node does), and every consumer of pixels calls it first, so
-      demosaicing happens before rectification, never after. A Bayer or NV21 image must
+      image_proc's debayer node does), and every consumer of pixels calls it first
+      (through ``ros.transport.image_pixels`` / ``gray_image``), so demosaicing happens
+      before rectification, never after. A Bayer or NV21 image must
       have an even width and height, a YUV 4:2:2 image an even width.
 """
 
@@ -322,36 +323,3 @@ def decode_camera_image(arr: NDArray[Any], encoding: str, *,
                            'needs an even width')
     code = cv2.COLOR_YUV2BGR_UYVY if encoding == 'yuv422' else cv2.COLOR_YUV2BGR_YUY2
     return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), code)), 'bgr8'
-
-
-def message_pixels(msg: Any, *, debayer: int = 3) -> tuple[NDArray[Any], str]:
-    """The pixels of an Image message in a plain encoding (:data:`ENCODINGS`): camera-native
-    encodings are decoded (:func:`decode_camera_image`).
-
-    Raises:
-        EncodingError / MessageError: As :func:`image_to_array` and
-            :func:`decode_camera_image`.
-    """
-    return decode_camera_image(image_to_array(msg), msg.encoding, debayer=debayer)
-
-
-def gray_pixels(msg: Any) -> NDArray[Any]:
-    """A camera image message as one grey channel (uint8, or uint16 for 16-bit input); a
-    Bayer mosaic is interpolated straight to grey.
-
-    Raises:
-        EncodingError: A depth or float image (32FC1, 16UC1 is taken as mono16), or as
-            :func:`message_pixels`.
-    """
-    if msg.encoding == '32FC1':
-        raise EncodingError('a 32FC1 image is not a camera image')
-    arr = image_to_array(msg)
-    if msg.encoding.startswith('bayer_'):
-        h, w = arr.shape[:2]
-        if h % 2 or w % 2:
-            raise MessageError(f'{msg.encoding} image is {w}x{h}: a Bayer mosaic needs an '
-                               'even width and height')
-        code = getattr(cv2, f'COLOR_Bayer{_BAYER_ORDERS[msg.encoding[6:10]]}2GRAY')
-        return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), code))
-    pixels, encoding = decode_camera_image(arr, msg.encoding)
-    return to_gray(pixels, encoding)

@@ -38,20 +38,30 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import Image
 
 from depth_nodes.core.camera import StereoModel
 from depth_nodes.errors import (
     CalibrationError,
+    DecodeError,
     DepthNodesError,
     EncodingError,
     MessageError,
     UncalibratedError,
+    UnsupportedFormatError,
 )
 from depth_nodes.ros.camera_info import StereoInfoCache
 from depth_nodes.ros.dds import use_large_message_profile
-from depth_nodes.ros.image import gray_pixels, image_to_array
+from depth_nodes.ros.image import CAMERA_ENCODINGS
 from depth_nodes.ros.memory import keep_freed_memory
 from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchronizer
+from depth_nodes.ros.transport import (
+    decode_image,
+    gray_image,
+    image_pixels,
+    transport_topic,
+    transport_type,
+)
 
 #: Publishers keep this many messages by default (reliable, volatile).
 PUBLISHER_DEPTH = 10
@@ -167,8 +177,15 @@ class DepthNode(Node):
         *,
         qos: QoSProfile | int | None = None,
         check_stamps: bool = True,
+        transport: str = 'raw',
     ) -> str:
         """Subscribe ``callback`` to ``topic`` with sensor-data QoS unless told otherwise.
+
+        An Image input with another ``transport`` (``compressed``, ``compressedDepth``:
+        the node's ``image_transport`` parameter) subscribes to a
+        sensor_msgs/CompressedImage on ``<topic>/<transport>`` instead, as image_transport
+        does; the callback gets the CompressedImage (decode it with :meth:`frame_image` or
+        :meth:`gray_image`).
 
         Every message is counted. With ``check_stamps`` (the default; off for inputs where
         only the latest value matters, such as a fixed calibration), a message whose header
@@ -181,6 +198,9 @@ class DepthNode(Node):
             The fully resolved topic name (after namespace and remapping).
         """
         resolved = self.resolve_topic_name(topic)
+        if transport != 'raw' and msg_type is Image:
+            msg_type = transport_type(transport)
+            resolved = topic = transport_topic(resolved, transport)
 
         def on_message(msg: Any) -> None:
             self.received[resolved] += 1
@@ -285,7 +305,7 @@ class DepthNode(Node):
 
     def add_synced_inputs(
         self,
-        inputs: list[tuple[type, str]],
+        inputs: list[tuple[type, str]] | list[tuple[type, str, str]],
         callback: Callable[..., None],
         *,
         queue_size: int,
@@ -295,9 +315,10 @@ class DepthNode(Node):
         """Subscribe to several topics and call ``callback(*msgs)`` for each matched set.
 
         Matching is by header stamp, exact or (``approximate``) by the ApproximateTime
-        policy. Messages the synchroniser discards are counted as drops with the reason
-        ``sync_<why>`` (``sync_unmatched``, ``sync_queue_full``, ...), so an image that never
-        found its camera_info is not lost silently.
+        policy. An entry ``(Image, topic, transport)`` subscribes that image through a
+        transport (see :meth:`add_input`). Messages the synchroniser discards are counted
+        as drops with the reason ``sync_<why>`` (``sync_unmatched``, ``sync_queue_full``,
+        ...), so an image that never found its camera_info is not lost silently.
         """
         if approximate:
             sync: ExactTimeSynchronizer | ApproximateTimeSynchronizer = (
@@ -322,8 +343,9 @@ class DepthNode(Node):
                             seen[why] = count
             return on_message
 
-        for index, (msg_type, topic) in enumerate(inputs):
-            topics.append(self.add_input(msg_type, topic, feed(index)))
+        for index, (msg_type, topic, *transport) in enumerate(inputs):
+            topics.append(self.add_input(msg_type, topic, feed(index),
+                                         transport=transport[0] if transport else 'raw'))
         return sync
 
     def _start_over(self) -> None:
@@ -351,37 +373,64 @@ class DepthNode(Node):
             seen.clear()
 
     def frame_image(self, msg: Any, what: str, shape: tuple[int, ...],
-                    encodings: tuple[str, ...]) -> Any:
-        """The pixels of an input image that must fit the frame being processed.
+                    encodings: tuple[str, ...], *, camera: bool = False) -> Any:
+        """The pixels of an input image (raw or compressed) that must fit the frame being
+        processed.
+
+        Args:
+            msg: An Image or CompressedImage.
+            what: How the logs name it.
+            shape: The frame's (height, width).
+            encodings: The encodings accepted.
+            camera: Decode camera encodings (Bayer, YUV) to bgr8 / bgr16 first; the
+                encodings are then those of the decoded pixels.
 
         Returns:
-            The array (see ``image_to_array``), or None after counting the drop:
-            ``unsupported_encoding`` (not one of ``encodings``), ``size_mismatch`` (not
-            ``shape`` = (height, width)) or ``malformed_image``.
+            ``(pixels, encoding)``, or None after counting the drop: the decoding's reason
+            (see :meth:`decoding_failed`), ``unsupported_encoding`` (not one of
+            ``encodings``) or ``size_mismatch`` (not ``shape``).
         """
-        if msg.encoding not in encodings:
-            self.drop('unsupported_encoding', f'{what} encoding {msg.encoding!r} is not '
+        declared = getattr(msg, 'encoding', None)  # a raw Image says before it is read
+        if declared is not None and declared not in encodings and not (
+                camera and declared in CAMERA_ENCODINGS):
+            encoding = declared
+        else:
+            try:
+                pixels, encoding = image_pixels(msg) if camera else decode_image(msg)
+            except MessageError as exc:
+                self.decoding_failed(exc, what)
+                return None
+        if encoding not in encodings:
+            self.drop('unsupported_encoding', f'{what} encoding {encoding!r} is not '
                       f'{" or ".join(encodings)}')
             return None
-        if (msg.height, msg.width) != tuple(shape[:2]):
-            self.drop('size_mismatch', f'{what} is {msg.width}x{msg.height}, the frame '
-                      f'{shape[1]}x{shape[0]}')
+        if pixels.shape[:2] != tuple(shape[:2]):
+            self.drop('size_mismatch', f'{what} is {pixels.shape[1]}x{pixels.shape[0]}, the '
+                      f'frame {shape[1]}x{shape[0]}')
             return None
-        try:
-            return image_to_array(msg)
-        except MessageError as exc:
-            self.drop('malformed_image', f'{what}: {exc}')
-            return None
+        return pixels, encoding
+
+    def decoding_failed(self, exc: MessageError, what: str) -> None:
+        """Count an image that could not be read: ``unsupported_format`` (a compressed
+        format or transport not known), ``unsupported_encoding``, ``decode_failed`` (damaged
+        compressed data) or ``malformed_image`` (fields that disagree, odd Bayer sizes)."""
+        if isinstance(exc, UnsupportedFormatError):
+            reason = 'unsupported_format'
+        elif isinstance(exc, EncodingError):
+            reason = 'unsupported_encoding'
+        elif isinstance(exc, DecodeError):
+            reason = 'decode_failed'
+        else:
+            reason = 'malformed_image'
+        self.drop(reason, f'{what}: {exc}')
 
     def gray_image(self, msg: Any, what: str) -> Any:
-        """A camera image as one grey channel (any camera encoding, Bayer and YUV decoded),
-        or None after counting the drop: ``unsupported_encoding`` or ``malformed_image``."""
+        """A camera image (raw or compressed, any camera encoding) as one grey channel, or
+        None after counting the drop (see :meth:`decoding_failed`)."""
         try:
-            return gray_pixels(msg)
-        except EncodingError as exc:
-            self.drop('unsupported_encoding', f'{what}: {exc}')
+            return gray_image(msg)
         except MessageError as exc:
-            self.drop('malformed_image', f'{what}: {exc}')
+            self.decoding_failed(exc, what)
         return None
 
     def stereo_model(self, left_info: Any, right_info: Any) -> StereoModel | None:

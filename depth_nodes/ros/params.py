@@ -28,6 +28,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from depth_nodes.errors import ConfigError
+from depth_nodes.ros.transport import TRANSPORTS
 
 #: Returns None when a value is acceptable, else the reason it is not.
 Check = Callable[[Any], str | None]
@@ -130,3 +131,18 @@ class NodeParameters:
                 return SetParametersResult(successful=False, reason=reason)
             self._values = MappingProxyType(candidate)
         return SetParametersResult(successful=True)
+
+
+def one_of(choices: tuple[Any, ...] | list[Any]) -> Check:
+    """A check that a value is one of ``choices`` (the reason lists them)."""
+    def check(value: Any) -> str | None:
+        return None if value in choices else f'must be one of {", ".join(map(str, choices))}'
+    return check
+
+
+#: The ``image_transport`` parameter of a node with camera-image inputs, as image_pipeline's
+#: nodes have it (image_transport's TransportHints).
+IMAGE_TRANSPORT = ParamSpec(
+    'image_transport', 'raw', 'How the camera images arrive: raw (sensor_msgs/Image on the '
+    'topic), compressed (sensor_msgs/CompressedImage, JPEG or PNG, on <topic>/compressed) or '
+    'compressedDepth (<topic>/compressedDepth)', read_only=True, check=one_of(TRANSPORTS))
