@@ -49,6 +49,9 @@ class NodeSpec:
     namespace: str = '/'
     parameters: dict[str, Any] = field(default_factory=dict)
     remappings: dict[str, str] = field(default_factory=dict)
+    #: Other names a parameter file may address this node by (e.g. ``disparity_node``,
+    #: stereo_image_proc's name for the node this one replaces).
+    aliases: list[str] = field(default_factory=list)
 
     @property
     def fully_qualified_name(self) -> str:
@@ -100,7 +103,8 @@ def _node_spec(entry: Any, path: Path, index: int) -> NodeSpec:
     where = f'graph config {path}, node #{index + 1}'
     if not isinstance(entry, dict):
         raise ConfigError(f'{where}: expected a mapping, got {entry!r}')
-    unknown = set(entry) - {'name', 'plugin', 'namespace', 'parameters', 'remappings'}
+    unknown = set(entry) - {'name', 'plugin', 'namespace', 'parameters', 'remappings',
+                            'aliases'}
     if unknown:
         raise ConfigError(f'{where}: unknown keys {sorted(unknown)}')
     for key in ('name', 'plugin'):
@@ -111,12 +115,110 @@ def _node_spec(entry: Any, path: Path, index: int) -> NodeSpec:
         raise ConfigError(f'{where}: "namespace" must be absolute, got {namespace!r}')
     params = entry.get('parameters') or {}
     remaps = entry.get('remappings') or {}
+    aliases = entry.get('aliases') or []
     if not isinstance(params, dict) or not isinstance(remaps, dict):
         raise ConfigError(f'{where}: "parameters" and "remappings" must be mappings')
+    if not isinstance(aliases, list) or not all(isinstance(a, str) and a for a in aliases):
+        raise ConfigError(f'{where}: "aliases" must be a list of node names')
     return NodeSpec(
         entry['name'], entry['plugin'], namespace, dict(params),
-        {str(k): str(v) for k, v in remaps.items()},
+        {str(k): str(v) for k, v in remaps.items()}, list(aliases),
     )
+
+
+#: Topic names of one camera that the graphs use below its namespace (renamed with it).
+CAMERA_TOPICS = ('image_raw', 'camera_info', 'image_rect', 'image_rect_color', 'image_mono',
+                 'image_color')
+
+
+def root_namespace(config: GraphConfig) -> str:
+    """The namespace every node of ``config`` lives in (``/stereo`` for the stereo graph:
+    its nodes are in /stereo, /stereo/left and /stereo/right)."""
+    parts = [n.namespace.strip('/').split('/') for n in config.nodes]
+    common: list[str] = []
+    for level in zip(*parts, strict=False):
+        if len(set(level)) != 1:
+            break
+        common.append(level[0])
+    return '/' + '/'.join(p for p in common if p)
+
+
+def rename_cameras(config: GraphConfig, *, namespace: str | None = None,
+                   left: str | None = None, right: str | None = None,
+                   image: str | None = None) -> GraphConfig:
+    """The graph moved to a camera driver's names.
+
+    Args:
+        config: The graph (e.g. config/stereo_pipeline.yaml, under /stereo).
+        namespace: Replaces the graph's root namespace (``/camera`` for a driver that
+            publishes ``/camera/left/image_raw``).
+        left: Replaces the left camera's name below it (``left``), e.g. ``infra1``.
+        right: Replaces the right camera's name (``right``), e.g. ``infra2``.
+        image: Replaces the raw image's name (``image_raw``), e.g. ``image_rect_raw``.
+
+    Nodes move with their namespace; a node at the root keeps its relative topic names
+    (``left/image_rect``) and gets remappings to the new side names; a remapping that
+    pointed at a renamed topic points at its new name.
+
+    Raises:
+        ConfigError: A name that is empty, relative where it must be absolute, or has
+            characters ROS does not allow.
+    """
+    root = root_namespace(config)
+    new_root = root if namespace is None else _checked_namespace(namespace)
+    sides = {k: _checked_name(v, f'--{k}') for k, v in (('left', left), ('right', right))
+             if v is not None and v != k}
+    new_image = None if image is None or image == 'image_raw' else _checked_name(image,
+                                                                                  '--image')
+
+    def move(name: str) -> str:
+        """A topic or namespace name, relative or absolute, under the new names."""
+        absolute = name.startswith('/')
+        if absolute:
+            if name != root and not name.startswith(root.rstrip('/') + '/'):
+                return name
+            rest = name[len(root):].strip('/')
+        else:
+            rest = name
+        parts = rest.split('/') if rest else []
+        if parts and parts[0] in sides:
+            parts[0] = sides[parts[0]]
+        if new_image is not None and parts and parts[-1] == 'image_raw':
+            parts[-1] = new_image
+        rest = '/'.join(parts)
+        if not absolute:
+            return rest
+        return '/' + '/'.join(p for p in (new_root.strip('/'), rest) if p)
+
+    nodes = []
+    for spec in config.nodes:
+        remaps = {src: move(dst) for src, dst in spec.remappings.items()}
+        in_root = spec.namespace.rstrip('/') == root.rstrip('/')
+        for side, new in sides.items():
+            if in_root:  # relative names of this node that pass through a side's namespace
+                for topic in CAMERA_TOPICS:
+                    remaps.setdefault(f'{side}/{topic}', f'{new}/{topic}')
+        if new_image is not None and not in_root:
+            remaps.setdefault('image_raw', new_image)
+        nodes.append(NodeSpec(spec.name, spec.plugin, move(spec.namespace) or '/',
+                              dict(spec.parameters), remaps, list(spec.aliases)))
+    return GraphConfig(config.name, nodes, config.source)
+
+
+def _checked_name(value: str, what: str) -> str:
+    if not value or not all(part and (part[0].isalpha() or part[0] == '_') and
+                            all(c.isalnum() or c == '_' for c in part)
+                            for part in value.split('/')):
+        raise ConfigError(f'{what} {value!r} is not a ROS name (letters, digits, _ and /)')
+    return value
+
+
+def _checked_namespace(value: str) -> str:
+    if not value.startswith('/'):
+        raise ConfigError(f'--namespace {value!r} must be absolute (start with /)')
+    if value.strip('/'):
+        _checked_name(value.strip('/'), '--namespace')
+    return '/' + value.strip('/')
 
 
 def load_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
@@ -153,22 +255,39 @@ def load_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
     return out
 
 
-def parameters_for(spec: NodeSpec, params: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """The parameters of ``spec``: its own, then ``/**``, then by name, then by full name."""
-    merged = dict(spec.parameters)
+def node_keys(spec: NodeSpec) -> list[str]:
+    """The keys of a parameter file that address ``spec`` in particular, weakest first:
+    its aliases, its name, its full name (with and without the leading slash)."""
     fq = spec.fully_qualified_name
-    for key in ('/**', spec.name, fq.lstrip('/'), fq):
+    keys: list[str] = []
+    for name in (*spec.aliases, spec.name):
+        full = f'{spec.namespace.rstrip("/")}/{name}'
+        keys += [name, full.lstrip('/'), full]
+    return [k for i, k in enumerate(keys) if k not in keys[:i]] + (
+        [fq] if fq not in keys else [])
+
+
+def parameters_for(spec: NodeSpec, params: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The parameters of ``spec``: its own, then ``/**``, then by alias, name, full name."""
+    merged = dict(spec.parameters)
+    for key in ('/**', *node_keys(spec)):
         merged.update(params.get(key, {}))
     return merged
 
 
 def addressed_parameters(spec: NodeSpec, params: dict[str, dict[str, Any]]) -> set[str]:
     """Names set for this node in particular (not through ``/**``): these must exist."""
-    fq = spec.fully_qualified_name
     names = set(spec.parameters)
-    for key in (spec.name, fq.lstrip('/'), fq):
+    for key in node_keys(spec):
         names.update(params.get(key, {}))
     return names
+
+
+def unmatched_entries(config: GraphConfig, params: dict[str, dict[str, Any]]) -> list[str]:
+    """The keys of a parameter file that address no node of ``config`` (``/**`` always
+    matches): rclpy would ignore them, so the commands report them."""
+    known = {key for spec in config.nodes for key in node_keys(spec)}
+    return sorted(key for key in params if key != '/**' and key not in known)
 
 
 def resolve_plugin(plugin: str) -> type:
@@ -238,6 +357,28 @@ def instantiate(spec: NodeSpec, params: dict[str, Any], *, required: set[str] | 
         raise ConfigError(f'node {spec.fully_qualified_name} ({spec.plugin}) has no parameter '
                           f'{", ".join(unknown)} (parameters: {known})')
     return node
+
+
+def external_image_nodes(nodes: list[Any]) -> list[str]:
+    """Full names of the nodes that read camera images from outside the graph (an Image
+    input no node of ``nodes`` publishes) and have an ``image_transport`` parameter: the
+    ones a camera's compressed topics must reach."""
+    from sensor_msgs.msg import CompressedImage, Image
+
+    produced = {topic for node in nodes for topic in node.outputs}
+    return [node.get_fully_qualified_name() for node in nodes
+            if node.has_parameter('image_transport') and any(
+                spec.msg_type in (Image, CompressedImage) and spec.topic not in produced
+                for spec in node.inputs)]
+
+
+def with_transport(params: dict[str, dict[str, Any]], node_names: list[str],
+                   transport: str) -> dict[str, dict[str, Any]]:
+    """``params`` with ``image_transport: transport`` added for each of ``node_names``."""
+    out = {key: dict(values) for key, values in params.items()}
+    for name in node_names:
+        out[name] = {**out.get(name, {}), 'image_transport': transport}
+    return out
 
 
 def create_nodes(config: GraphConfig, params: dict[str, dict[str, Any]] | None = None,

@@ -1,6 +1,7 @@
 """The `depth-nodes` command.
 
-Subcommands: ``generate`` (synthetic bags), ``process`` (run nodes over a bag offline),
+Subcommands: ``generate`` (synthetic bags), ``convert`` (a bag as a camera driver records
+it), ``process`` (run nodes over a bag offline),
 ``pipeline`` (the nodes of a graph live, in one process), ``param`` (a running node's
 parameters), ``play`` / ``record`` (bags into and out of a live graph), ``eval``
 (accuracy against the ground truth in a bag), ``bench`` (speed beside OpenCV). A user error
@@ -15,10 +16,13 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.tools import signals
+
+if TYPE_CHECKING:
+    from depth_nodes.ros.graph import GraphConfig
 
 EXIT_ERROR = 1
 #: The bags committed with the package (a source checkout).
@@ -93,20 +97,63 @@ def _cmd_process(args: argparse.Namespace) -> int:
     from depth_nodes.ros.graph import load_graph_config
     from depth_nodes.tools.process import default_config_path, process_bag, select_nodes
 
-    config = load_graph_config(args.config or default_config_path())
+    config = _renamed(load_graph_config(args.config or default_config_path()), args)
     config = select_nodes(config, args.nodes)
     with signals.graceful():
         report = process_bag(args.in_bag, args.out_bag, config=config,
                              params_file=args.params, overwrite=args.force,
-                             progress=sys.stderr)
+                             progress=sys.stderr, image_transport=args.image_transport)
     print(f'{args.in_bag} -> {args.out_bag} (graph {config.name})')
     print(report.format())
     if report.interrupted:
         print(f'depth-nodes process: interrupted after {report.done} of {report.total} '
               f'messages; {args.out_bag} holds what was done', file=sys.stderr)
     elif not report.published:
-        raise BagError(f'the graph published nothing (see the drops above); '
-                       f'{args.out_bag} was removed')
+        raise BagError(f'{report.nothing_published()}; {args.out_bag} was removed')
+    return 0
+
+
+def _renamed(config: GraphConfig, args: argparse.Namespace) -> GraphConfig:
+    """The graph under the camera names given on the command line."""
+    from depth_nodes.ros.graph import rename_cameras
+
+    return rename_cameras(config, namespace=args.namespace, left=args.left, right=args.right,
+                          image=args.image)
+
+
+def _camera_options(parser: argparse.ArgumentParser, *, auto: bool) -> None:
+    """--namespace, --left, --right, --image, --image-transport: a camera driver's names."""
+    group = parser.add_argument_group(
+        'camera names', 'Move the graph to the topics a camera driver publishes, e.g. '
+        '/camera/left/image_raw/compressed: --namespace /camera'
+        + (' (the compressed transport is found by itself)' if auto else
+           ' --image-transport compressed'))
+    group.add_argument('--namespace', help='the camera namespace, replacing the graph\'s '
+                       '(/stereo for the stereo graph)')
+    group.add_argument('--left', help='name of the left camera below it (default left), e.g. '
+                       'infra1')
+    group.add_argument('--right', help='name of the right camera (default right), e.g. infra2')
+    group.add_argument('--image', help='name of the raw image topic (default image_raw), e.g. '
+                       'image_rect_raw')
+    group.add_argument('--image-transport', choices=('raw', 'compressed', 'compressedDepth'),
+                       help='how the camera images arrive' + (
+                           ' (default: raw, or compressed when the bag holds only '
+                           '<topic>/compressed)' if auto else ' (default raw)'))
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.convert import ConvertOptions, convert_bag
+
+    options = ConvertOptions(namespace=args.namespace, codec=args.compress,
+                             quality=args.quality, bayer=args.bayer)
+    with signals.graceful():
+        counts = convert_bag(args.in_bag, args.out_bag, options, overwrite=args.force)
+    print(f'{args.in_bag} -> {args.out_bag}')
+    for topic, count in sorted(counts.items()):
+        print(f'  {topic:<48} {count:>6}')
+    if signals.stop_requested():
+        print(f'depth-nodes convert: interrupted; {args.out_bag} holds the messages written '
+              'before the signal', file=sys.stderr)
     return 0
 
 
@@ -130,11 +177,14 @@ def _cmd_import_pair(args: argparse.Namespace) -> int:
 
 
 def _cmd_pipeline(args: argparse.Namespace) -> int:
+    from depth_nodes.ros.graph import load_graph_config
     from depth_nodes.tools.pipeline import run_pipeline
     from depth_nodes.tools.process import default_config_path
 
-    return run_pipeline(args.config or default_config_path(), params_file=args.params,
-                        threads=args.threads, ros_args=args.ros_args, log=sys.stdout)
+    config = _renamed(load_graph_config(args.config or default_config_path()), args)
+    return run_pipeline(config, params_file=args.params, threads=args.threads,
+                        ros_args=args.ros_args, log=sys.stdout,
+                        image_transport=args.image_transport)
 
 
 def _cmd_play(args: argparse.Namespace) -> int:
@@ -302,7 +352,30 @@ def build_parser() -> argparse.ArgumentParser:
     proc.add_argument('--params', help='ROS 2 parameter file overriding node parameters')
     proc.add_argument('--nodes', nargs='+', help='run only these nodes of the graph')
     proc.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
+    _camera_options(proc, auto=True)
     proc.set_defaults(func=_cmd_process)
+
+    conv = sub.add_parser(
+        'convert', help='rewrite a bag as a camera driver records it (compressed, Bayer, '
+        'another namespace)',
+        description='Copy a bag, turning its raw camera images (sensor_msgs/Image topics '
+        'ending in /image_raw) into what a driver records: a Bayer mosaic (--bayer), '
+        'image_transport\'s compressed topics (--compress), under another namespace '
+        '(--namespace). Every other message is copied, ground truth included, so process and '
+        'eval show what the compression costs.',
+        epilog='Example: depth-nodes convert bags/stereo_vga out/vga_jpeg --compress jpeg '
+        '--quality 80 --namespace /camera')
+    conv.add_argument('in_bag')
+    conv.add_argument('out_bag')
+    conv.add_argument('--compress', choices=('jpeg', 'png'),
+                      help='store the images as <topic>/compressed (CompressedImage)')
+    conv.add_argument('--quality', type=int, default=90, help='JPEG quality 1..100 (default '
+                      '90)')
+    conv.add_argument('--bayer', choices=('rggb', 'bggr', 'gbrg', 'grbg'),
+                      help='sample colour images on this Bayer tile (bayer_<order>8)')
+    conv.add_argument('--namespace', help='replace the first namespace of every topic')
+    conv.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
+    conv.set_defaults(func=_cmd_convert)
 
     imp = sub.add_parser(
         'import-pair', help='a real image pair (and its ground truth) as a bag for process '
@@ -350,6 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
     pipe.add_argument('--threads', type=int,
                       help='threads of each node\'s executor (default 1: a node handles one '
                       'callback at a time, the nodes run beside each other)')
+    _camera_options(pipe, auto=False)
     pipe.set_defaults(func=_cmd_pipeline)
 
     play = sub.add_parser('play', help='publish a bag into the live graph')

@@ -19,6 +19,8 @@ sleeps while that node works.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import itertools
 import threading
 import time
 from pathlib import Path
@@ -34,7 +36,15 @@ from rclpy.executors import (
 from rclpy.signals import SignalHandlerOptions
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import create_nodes, load_graph_config, load_params_file
+from depth_nodes.ros.graph import (
+    GraphConfig,
+    create_nodes,
+    external_image_nodes,
+    load_graph_config,
+    load_params_file,
+    unmatched_entries,
+    with_transport,
+)
 
 #: Seconds each node's executor gets to finish its callback when the pipeline stops.
 STOP_TIMEOUT_S = 10.0
@@ -43,19 +53,60 @@ STOP_TIMEOUT_S = 10.0
 MAX_EXECUTOR_THREADS = 64
 
 
-def run_pipeline(config_path: str | Path, *, params_file: str | Path | None = None,
-                 threads: int | None = None, ros_args: list[str] | None = None,
-                 log: TextIO | None = None) -> int:
+def user_remappings(ros_args: list[str]) -> list[tuple[str, str]]:
+    """The ``-r FROM:=TO`` / ``--remap FROM:=TO`` rules of ``--ros-args`` that apply to every
+    node (a ``node:FROM:=TO`` rule names its node and is left to rclpy)."""
+    rules = []
+    for flag, rule in itertools.pairwise(ros_args):
+        if flag in ('-r', '--remap') and ':=' in rule:
+            source, _, target = rule.partition(':=')
+            if ':' not in source:
+                rules.append((source, target))
+    return rules
+
+
+def _resolve(name: str, namespace: str) -> str:
+    return name if name.startswith('/') else f'{namespace.rstrip("/")}/{name}'
+
+
+def compose_remappings(config: GraphConfig, rules: list[tuple[str, str]]) -> GraphConfig:
+    """The graph with the user's remapping rules applied after its own: a rule whose source
+    is where a node's own remapping leads replaces that destination. (ROS applies only the
+    first rule that matches a name, and a node's own rules come first, so a user's
+    ``-r /stereo/left/image_raw:=/camera/left/image_raw`` never reached the rectifier's
+    ``image``, which the graph remaps to ``image_raw``.)"""
+    nodes = []
+    for spec in config.nodes:
+        remaps = {}
+        for source, target in spec.remappings.items():
+            resolved = _resolve(target, spec.namespace)
+            for match, replacement in rules:
+                if _resolve(match, spec.namespace) == resolved:
+                    target = replacement
+                    break
+            remaps[source] = target
+        nodes.append(dataclasses.replace(spec, remappings=remaps))
+    return GraphConfig(config.name, nodes, config.source)
+
+
+def run_pipeline(config_path: str | Path | GraphConfig, *,
+                 params_file: str | Path | None = None, threads: int | None = None,
+                 ros_args: list[str] | None = None, log: TextIO | None = None,
+                 image_transport: str | None = None) -> int:
     """Run the graph of ``config_path`` until Ctrl-C or SIGTERM.
 
     Args:
-        config_path: The graph description (e.g. config/stereo_pipeline.yaml).
+        config_path: The graph description (e.g. config/stereo_pipeline.yaml), or the
+            graph itself.
         params_file: A ROS 2 parameter file applied on top of the config's parameters.
         threads: Threads of each node's executor: by default (and with 1) one, the node
             handling one callback at a time; more only help a node whose callbacks may
             overlap (none of the package's do).
-        ros_args: Extra ``--ros-args ...`` arguments (e.g. ``--log-level debug``).
+        ros_args: Extra ``--ros-args ...`` arguments (e.g. ``--log-level debug``); its
+            remapping rules also apply after the graph's own (:func:`compose_remappings`).
         log: Where to announce the nodes once they are up.
+        image_transport: How the nodes that read the camera's images take them (raw,
+            compressed, compressedDepth; default raw).
 
     Returns:
         0 after a clean shutdown.
@@ -63,9 +114,16 @@ def run_pipeline(config_path: str | Path, *, params_file: str | Path | None = No
     Raises:
         ConfigError: Invalid config, parameter file or thread count.
     """
-    config = load_graph_config(config_path)
+    config = config_path if isinstance(config_path, GraphConfig) else load_graph_config(
+        config_path)
     if not config.nodes:
-        raise ConfigError(f'graph config {config_path} has no nodes')
+        raise ConfigError(f'graph config {config.source or config.name} has no nodes')
+    config = compose_remappings(config, user_remappings(ros_args or []))
+    params = load_params_file(params_file) if params_file else {}
+    for key in unmatched_entries(config, params):
+        if log is not None:
+            log.write(f'warning: parameter file entry {key!r} matches no node of the graph; '
+                      'it was ignored\n')
     if threads is not None and not 1 <= threads <= MAX_EXECUTOR_THREADS:
         raise ConfigError(f'--threads must be in 1..{MAX_EXECUTOR_THREADS}, got {threads}')
     context = Context()
@@ -78,8 +136,14 @@ def run_pipeline(config_path: str | Path, *, params_file: str | Path | None = No
     executors: list[Any] = []
     spinners: list[threading.Thread] = []
     try:
-        params = load_params_file(params_file) if params_file else {}
         nodes = create_nodes(config, params, context=context)
+        if image_transport not in (None, 'raw'):
+            names = external_image_nodes(nodes)
+            for node in nodes:
+                node.destroy_node()
+            nodes = []
+            nodes = create_nodes(config, with_transport(params, names, image_transport),
+                                 context=context)
         for node in nodes:
             if threads is not None and threads > 1:
                 executor: Any = MultiThreadedExecutor(num_threads=threads, context=context)

@@ -17,17 +17,23 @@ from typing import Any, TextIO
 
 import rclpy
 from rclpy.context import Context
+from sensor_msgs.msg import Image
 
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.graph import (
     GraphConfig,
     create_nodes,
+    external_image_nodes,
     load_graph_config,
     load_params_file,
+    root_namespace,
+    unmatched_entries,
+    with_transport,
 )
 from depth_nodes.tools.bagio import BagReader, BagWriter, message_type_name, remove_bag
 from depth_nodes.tools.signals import stop_requested
 
+COMPRESSED = 'sensor_msgs/msg/CompressedImage'
 #: The default graph: the stereo pipeline under /stereo.
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'stereo_pipeline.yaml'
 
@@ -61,6 +67,12 @@ class ProcessReport:
     drops: dict[str, Counter[str]] = field(default_factory=dict)
     shadowed: list[str] = field(default_factory=list)
     unfed: list[str] = field(default_factory=list)
+    #: Nodes switched to a compressed transport because the bag holds only that.
+    transports: dict[str, str] = field(default_factory=dict)
+    #: Bag namespaces that hold the missing inputs (what --namespace would take).
+    suggestions: list[str] = field(default_factory=list)
+    #: Parameter-file entries that address no node (rclpy would ignore them).
+    unmatched_params: list[str] = field(default_factory=list)
     #: Input messages handled, of ``total`` in the bag.
     done: int = 0
     total: int = 0
@@ -86,9 +98,26 @@ class ProcessReport:
         for topic in self.shadowed:
             lines.append(f'note: input topic {topic} is also published by a node; '
                          'only the node output was written')
+        for key in self.unmatched_params:
+            lines.append(f'warning: parameter file entry {key!r} matches no node of the '
+                         'graph; it was ignored')
+        for node, transport in sorted(self.transports.items()):
+            lines.append(f'note: {node} reads its images with image_transport {transport} '
+                         '(the bag holds no raw ones)')
         for topic in self.unfed:
             lines.append(f'note: {topic} is subscribed but neither in the bag nor published')
         return '\n'.join(lines)
+
+    def nothing_published(self) -> str:
+        """Why a run published nothing, for the one-line error."""
+        if not self.unfed:
+            return 'the graph published nothing (see the drops above)'
+        hint = ''
+        if self.suggestions:
+            hint = f'; the bag has them under {" or ".join(self.suggestions)}: try ' + \
+                ' or '.join(f'--namespace {s}' for s in self.suggestions)
+        return (f'the graph published nothing: its inputs {", ".join(self.unfed)} are not in '
+                f'the bag{hint}')
 
 
 class _Progress:
@@ -140,6 +169,7 @@ def process_bag(
     params_file: str | Path | None = None,
     overwrite: bool = False,
     progress: TextIO | None = None,
+    image_transport: str | None = None,
 ) -> ProcessReport:
     """Run ``config``'s nodes over ``in_bag`` and write everything to ``out_bag``.
 
@@ -150,6 +180,9 @@ def process_bag(
         params_file: A ROS 2 parameter file overriding node parameters.
         overwrite: Replace an existing ``out_bag``.
         progress: Stream for a progress bar (shown only when it is a terminal).
+        image_transport: How the nodes that read the bag's camera images take them
+            (``raw``, ``compressed``, ``compressedDepth``); by default raw, or compressed
+            where the bag holds only ``<topic>/compressed``.
 
     Returns:
         The counts of what went in, came out and was dropped.
@@ -163,6 +196,7 @@ def process_bag(
     config = config or load_graph_config(default_config_path())
     params = load_params_file(params_file) if params_file else {}
     report = ProcessReport()
+    report.unmatched_params = unmatched_entries(config, params)
     reader = BagReader(in_bag)
     if reader.message_count == 0:
         reader.close()
@@ -173,15 +207,24 @@ def process_bag(
     try:
         nodes = create_nodes(config, params, context=context)
         report.nodes = [n.get_fully_qualified_name() for n in nodes]
-        routes: dict[str, list[Any]] = {}
-        produced: set[str] = set()
-        for node in nodes:
-            for spec_in in node.inputs:
-                routes.setdefault(spec_in.topic, []).append(spec_in)
-            produced.update(node.outputs)
+        routes, produced = _routes(nodes)
         report.shadowed = sorted(produced & set(reader.topics))
+        if image_transport is not None:
+            switch = dict.fromkeys(external_image_nodes(nodes), image_transport)
+        else:  # raw, unless the bag holds only compressed images
+            switch = _compressed_inputs(nodes, reader, produced)
+        if any(t != 'raw' for t in switch.values()):
+            for node in nodes:
+                node.destroy_node()
+            nodes = []
+            for name, transport in switch.items():
+                params = with_transport(params, [name], transport)
+            report.transports = {k: v for k, v in switch.items() if v != 'raw'}
+            nodes = create_nodes(config, params, context=context)
+            routes, produced = _routes(nodes)
         _check_types(reader, routes)
         report.unfed = sorted(set(routes) - set(reader.topics) - produced)
+        report.suggestions = _namespaces_holding(report.unfed, config, reader)
         writer = BagWriter(out_bag, overwrite=overwrite)
         try:
             with writer:
@@ -198,6 +241,51 @@ def process_bag(
         rclpy.shutdown(context=context)
         reader.close()
     return report
+
+
+def _routes(nodes: list[Any]) -> tuple[dict[str, list[Any]], set[str]]:
+    """Which node inputs each topic feeds, and the topics the nodes publish."""
+    routes: dict[str, list[Any]] = {}
+    produced: set[str] = set()
+    for node in nodes:
+        for spec_in in node.inputs:
+            routes.setdefault(spec_in.topic, []).append(spec_in)
+        produced.update(node.outputs)
+    return routes, produced
+
+
+def _compressed_inputs(nodes: list[Any], reader: BagReader, produced: set[str]
+                       ) -> dict[str, str]:
+    """Nodes whose raw image inputs the bag lacks but holds as ``<topic>/compressed`` (or
+    ``compressedDepth``): ``{node: transport}``."""
+    switch: dict[str, str] = {}
+    for node in nodes:
+        if not node.has_parameter('image_transport') or \
+                node.get_parameter('image_transport').value != 'raw':
+            continue
+        for spec_in in node.inputs:
+            if spec_in.msg_type is not Image or spec_in.topic in reader.topics or \
+                    spec_in.topic in produced:
+                continue
+            for transport in ('compressed', 'compressedDepth'):
+                if reader.topics.get(f'{spec_in.topic}/{transport}') == COMPRESSED:
+                    switch[node.get_fully_qualified_name()] = transport
+    return switch
+
+
+def _namespaces_holding(unfed: list[str], config: GraphConfig, reader: BagReader) -> list[str]:
+    """Namespaces of the bag under which the missing inputs exist (raw or compressed)."""
+    root = root_namespace(config).rstrip('/')
+    found: set[str] = set()
+    for topic in unfed:
+        if not topic.startswith(root + '/'):
+            continue
+        tail = topic[len(root):]
+        for bag_topic in reader.topics:
+            for suffix in ('', '/compressed'):
+                if bag_topic.endswith(tail + suffix) and bag_topic != topic:
+                    found.add(bag_topic[:len(bag_topic) - len(tail + suffix)] or '/')
+    return sorted(found)
 
 
 def _check_types(reader: BagReader, routes: dict[str, list[Any]]) -> None:
