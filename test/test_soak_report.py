@@ -3,7 +3,7 @@ minutes; the README has its figures and the command)."""
 
 from __future__ import annotations
 
-from depth_nodes.tools.soak import SoakReport, _middleware_losses
+from depth_nodes.tools.soak import SoakReport, _middleware_losses, timeline
 
 
 def test_middleware_losses_are_outputs_minus_inputs_per_topic() -> None:
@@ -32,6 +32,12 @@ def test_report_says_whether_every_lost_frame_is_accounted_for() -> None:
     assert 'nothing lost uncounted' in text
     assert ('first   300.0 MB  middle   310.0 MB  last   305.0 MB  max   310.0 MB  '
             'second half -5.0 MB') in text
+    assert 'every 5 min: 300 305 MB' in text
     assert 'answer median 6 ms, max 7 ms, refused 0' in text
     report.back = 590  # ten lost, four accounted for
     assert 'SOME LOST UNCOUNTED' in report.format()
+
+
+def test_timeline_shows_every_nth_sample_and_the_last() -> None:
+    assert timeline([290.4, 291.0, 292.2, 311.6, 311.4], 2) == '290 292 311'
+    assert timeline([290.4, 291.0, 292.2, 311.6], 2) == '290 292 312'

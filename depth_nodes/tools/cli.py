@@ -285,7 +285,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from depth_nodes.tools.soak import soak
 
         print(soak(duration=args.duration, rate=args.rate, tune_every=args.tune_every,
-                   composed=args.composed).format())
+                   composed=args.composed, memory_log=args.memory_log).format())
         return 0
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
     import cv2
@@ -489,6 +489,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help='soak: seconds to run (default 1800)')
     bench.add_argument('--tune-every', type=float, default=10.0,
                        help='soak: seconds between two changes of P2 (default 10)')
+    bench.add_argument('--memory-log', metavar='CSV',
+                       help='soak: write every memory sample (seconds, process, MB) here')
     bench.add_argument('--live', action='store_true',
                        help='the stereo pipeline as separate processes over DDS: sustained '
                        'rate and per-stage latency, beside the OpenCV graph')

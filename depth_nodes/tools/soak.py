@@ -12,13 +12,17 @@ every node process's resident memory, and at the end reads every node's totals f
   total minus the downstream node's input total, per topic). A frame that is lost and
   appears in neither is lost uncounted;
 * resident memory of each process: at the first sample, at the run's middle and at the
-  end, its largest, and its growth over the second half (what "flat" is judged by: the
-  first half includes allocations made once, such as a second matcher's buffers);
+  end, its largest, its growth over the second half, and a timeline every 5 minutes
+  (what "flat" is judged by: the first half includes allocations made once, such as a
+  second matcher's buffers, and a step that does not repeat, such as the middleware's
+  history of large messages filling up, is bounded where a steady climb is not); every
+  sample also goes to ``memory_log`` (CSV) when given;
 * the parameter service's answer times.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import statistics
 import tempfile
@@ -50,6 +54,8 @@ from depth_nodes.tools.signals import STOP, graceful, stop_requested
 SGM = f'{NS}/sgm_stereo'
 #: Seconds between two memory samples.
 MEMORY_PERIOD_S = 30.0
+#: Spacing of the memory timeline in the report.
+TIMELINE_S = 300.0
 #: Seconds to wait for the last frames once publishing stopped.
 DRAIN_S = 5.0
 #: The two values of P2 the soak alternates between.
@@ -97,11 +103,21 @@ class SoakReport:
                              f'  middle {mid:7.1f} MB  last {samples[-1]:7.1f} MB  max '
                              f'{max(samples):7.1f} MB  second half {samples[-1] - mid:+.1f} MB'
                              f'  ({len(samples)} samples)')
+                lines.append(f'    every {TIMELINE_S / 60:g} min: '
+                             f'{timeline(samples, round(TIMELINE_S / MEMORY_PERIOD_S))} MB')
         if self.answers_ms:
             lines.append(f'  parameter service ({len(self.answers_ms)} sets of P2): answer '
                          f'median {statistics.median(self.answers_ms):.0f} ms, max '
                          f'{max(self.answers_ms):.0f} ms, refused {self.refused}')
         return '\n'.join(lines)
+
+
+def timeline(samples: list[float], every: int) -> str:
+    """Every ``every``-th sample and the last, rounded to MB: steps and trends show."""
+    picked = samples[::every]
+    if (len(samples) - 1) % every:
+        picked.append(samples[-1])
+    return ' '.join(f'{v:.0f}' for v in picked)
 
 
 def _rss_mb(pid: int) -> float | None:
@@ -115,7 +131,7 @@ def _rss_mb(pid: int) -> float | None:
 
 
 def soak(*, duration: float = 1800.0, rate: float = 10.0, tune_every: float = 10.0,
-         composed: bool = False) -> SoakReport:
+         composed: bool = False, memory_log: str | Path | None = None) -> SoakReport:
     """Run the soak (see the module notes); a SIGINT / SIGTERM ends it early, reported.
 
     Raises:
@@ -146,7 +162,15 @@ def soak(*, duration: float = 1800.0, rate: float = 10.0, tune_every: float = 10
     client = node.create_client(SetParameters, f'{SGM}/set_parameters')
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    with tempfile.TemporaryDirectory(prefix='depth_nodes_soak_') as tmp, graceful():
+    with tempfile.TemporaryDirectory(prefix='depth_nodes_soak_') as tmp, graceful(), \
+            contextlib.ExitStack() as stack:
+        log = None
+        if memory_log is not None:
+            try:
+                log = stack.enter_context(open(memory_log, 'w', encoding='utf-8'))
+            except OSError as exc:
+                raise ConfigError(f'--memory-log {memory_log}: {exc.strerror}') from None
+            log.write('seconds,process,rss_mb\n')
         graph = GraphProcesses(config, Path(tmp), env=env, composed=composed)
         try:
             graph.start()
@@ -163,6 +187,9 @@ def soak(*, duration: float = 1800.0, rate: float = 10.0, tune_every: float = 10
                         mb = _rss_mb(proc.pid)
                         if mb is not None:
                             report.memory_mb.setdefault(name, []).append(mb)
+                            if log is not None:
+                                log.write(f'{now - start:.1f},{name},{mb:.2f}\n')
+                                log.flush()
                     next_sample += MEMORY_PERIOD_S
                 if now >= next_tune:
                     tune += 1
