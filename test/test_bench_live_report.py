@@ -37,9 +37,11 @@ def test_header_names_the_paths_and_opencv_runs_the_matching_mode() -> None:
     config = GraphConfig('stereo', [
         NodeSpec('sgm_stereo', 'sgm_stereo', '/stereo', {'paths': 5}, {}),
         NodeSpec('cross_check', 'cross_check', '/stereo', {}, {})])
-    for paths, full_dp in ((5, False), (8, True)):
+    for paths, mode in ((5, 0), (8, 1)):
         graph = opencv_graph(config, paths)
         assert [n.plugin for n in graph.nodes] == ['sgm_stereo']  # no cross-check
-        assert graph.nodes[0].parameters == {'paths': 5, 'backend': 'opencv',
-                                             'full_dp': full_dp, 'disp12_max_diff': 1,
-                                             'speckle_size': 100, 'speckle_range': 2}
+        assert graph.nodes[0].parameters == {
+            'paths': 5, 'stereo_algorithm': 1, 'sgbm_mode': mode, 'right_view': False,
+            'correlation_window_size': 5, 'P1': 200.0, 'P2': 800.0, 'uniqueness_ratio': 10.0,
+            'prefilter_cap': 63, 'disp12_max_diff': 1, 'speckle_size': 100,
+            'speckle_range': 2}

@@ -17,7 +17,14 @@ from rclpy.parameter import Parameter
 from targets import assert_confidence_ranks_errors
 
 from conftest import STEREO_RANGES, tuner
-from depth_nodes.core.cross_check import cross_check
+from depth_nodes.core.cross_check import (
+    MISMATCH,
+    OCCLUDED,
+    OUTSIDE,
+    VALID,
+    cross_check,
+    left_right_check,
+)
 from depth_nodes.core.metrics import sparsification_auc
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.nodes.cross_check import CrossCheckNode
@@ -168,7 +175,7 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert np.isfinite(after).sum() > np.isfinite(before).sum()
         for name, value, reason in [
                 ('confidence_window', 4, 'must be odd'),
-                ('disp12_max_diff', 100.0, 'must be in [0.05, 64]'),
+                ('disp12_max_diff', 100.0, 'must be in [-1, 64]'),
                 ('disp12_max_diff', 'one', 'must be a number'),
                 ('speckle_range', -1, 'must be in [0, 64]')]:
             (result,) = tune(**{name: value})
@@ -238,3 +245,22 @@ def test_confidence_on_the_bundled_bags(stereo_reports: dict[str, tuple[Path, Ev
     with BagReader(path) as reader:
         out = next(m for m in reader.messages([CHECKED])).deserialize()
     assert np.isfinite(read_disparity(out).disparity).all()  # the shipped output is dense
+
+
+def test_disp12_max_diff_zero_turns_the_check_off(context: Context) -> None:
+    """stereo_image_proc's 0 (off), also reaching this node through a `/**` entry: every
+    pixel with a partner is kept, whatever the two views say."""
+    node = CrossCheckNode(context=context, parameter_overrides=[
+        Parameter('disp12_max_diff', value=0), Parameter('speckle_size', value=0)])
+    node.outbox = {}
+    node.sink = lambda topic, msg: node.outbox.__setitem__(topic, msg)
+    try:
+        node.on_frame(*_inputs())
+        kept = read_disparity(node.outbox['/disparity_checked']).disparity
+        lr = left_right_check(MATCH.disparity, MATCH.disparity_right, max_diff=1.0)
+        with_partner = np.isin(lr.labels, (VALID, MISMATCH, OUTSIDE)) | (
+            (lr.labels == OCCLUDED) & np.isfinite(lr.difference))
+        np.testing.assert_array_equal(np.isfinite(kept), with_partner)
+        assert (lr.labels == MISMATCH).any()  # there was something to drop
+    finally:
+        node.destroy_node()

@@ -117,7 +117,7 @@ def test_list_names_every_parameter_sorted(graph: dict[str, str]) -> None:
     assert result.returncode == 0, result.stderr
     names = result.stdout.split()
     assert names == sorted(names)
-    assert {'P1', 'P2', 'disparity_range', 'uniqueness_ratio', 'backend', 'queue_size',
+    assert {'P1', 'P2', 'disparity_range', 'uniqueness_ratio', 'stereo_algorithm', 'queue_size',
             'use_sim_time'} <= set(names)
     assert 'qos_overrides./stereo/disparity.publisher.reliability' in names
 
@@ -125,7 +125,7 @@ def test_list_names_every_parameter_sorted(graph: dict[str, str]) -> None:
 def test_get_prints_defaults_by_type(graph: dict[str, str]) -> None:
     assert _get(graph, 'P2') == 'Double value is: 220.0'
     assert _get(graph, 'disparity_range') == 'Integer value is: 128'
-    assert _get(graph, 'backend') == 'String value is: census_sgm'
+    assert _get(graph, 'intensity_cost') == 'String value is: bt'
     assert _get(graph, 'median_filter') == 'Boolean value is: False'
 
 

@@ -17,7 +17,7 @@ from depth_nodes.core.sgm import SgmMatcher
 from depth_nodes.nodes.sgm_stereo import SgmStereoNode, opencv_settings, sgm_params
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.image import array_to_image
+from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 
 pytestmark = pytest.mark.ros
@@ -197,17 +197,18 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         np.testing.assert_array_equal(after, expected.disparity)
         (rejected,) = tune(P1=1000.0)
         assert not rejected.successful
-        assert 'P2 (900.0) must be >= P1 (1000.0)' in rejected.reason
+        assert 'SGM parameter P2=900: must be >= P1 (1000)' in rejected.reason
         (rejected,) = tune(paths=6)
         assert not rejected.successful
         assert 'must be 4, 5, 8 or 16' in rejected.reason
         (accepted,) = tune(disparity_range=50)  # any range for census_sgm
         assert accepted.successful
-        (rejected,) = tune(backend='opencv')
+        (rejected,) = tune(stereo_algorithm=1)
         assert not rejected.successful
-        assert 'disparity_range (50) must be a multiple of 16 with the opencv' in rejected.reason
+        assert ('disparity_range (50) must be a multiple of 16 with OpenCV StereoSGBM'
+                in rejected.reason)
         assert node.params.values['P2'] == 900.0
-        assert node.params.values['backend'] == 'census_sgm'
+        assert node.params.values['stereo_algorithm'] == 2
         results = tune(disparity_range=64, uniqueness_ratio=5.0, threads=1)
         assert all(r.successful for r in results)
         node.on_frame(*_inputs())
@@ -259,19 +260,35 @@ def test_the_checks_of_the_raw_output_are_parameters(node: Any, context: Context
         assert 'out of range' in rejected.reason
 
 
-def test_opencv_backend_matches_stereosgbm(context: Context) -> None:
+def test_opencv_sgbm_matches_stereosgbm(context: Context) -> None:
     node = SgmStereoNode(context=context, parameter_overrides=[
-        Parameter('backend', value='opencv'), Parameter('disparity_range', value=48)])
+        Parameter('stereo_algorithm', value=1), Parameter('disparity_range', value=48)])
     outbox: dict[str, Any] = {}
     node.sink = lambda topic, msg: outbox.__setitem__(topic, msg)
     try:
         node.on_frame(*_inputs())
-        assert set(outbox) == {'/disparity'}
+        assert set(outbox) == {'/disparity', '/disparity_right', '/cost_ratio'}
         got = read_disparity(outbox['/disparity'])
         expected = opencv_sgbm(FRAME.left_rect_gt, FRAME.right_rect_gt,
                                opencv_settings(node.params.values), disparity_range=48)
         np.testing.assert_array_equal(got.disparity, expected)
         assert got.delta_d == pytest.approx(1 / 16)
+        # the right view: the mirrored pair, so x_left = x_right + d where both agree
+        right = read_disparity(outbox['/disparity_right']).disparity
+        mirrored = opencv_sgbm(FRAME.right_rect_gt[:, ::-1].copy(),
+                               FRAME.left_rect_gt[:, ::-1].copy(),
+                               opencv_settings(node.params.values), disparity_range=48)
+        np.testing.assert_array_equal(right, mirrored[:, ::-1])
+        ys, xs = np.nonzero(np.isfinite(expected))
+        xr = np.rint(xs - expected[ys, xs]).astype(int)
+        inside = (xr >= 0) & np.isfinite(right[ys, np.clip(xr, 0, None)])
+        agree = np.abs(right[ys[inside], xr[inside]] - expected[ys[inside], xs[inside]]) <= 1
+        assert agree.mean() > 0.8
+        assert np.isnan(image_to_array(outbox['/cost_ratio'])).all()
+        outbox.clear()
+        node.set_parameters([Parameter('right_view', value=False)])
+        node.on_frame(*_inputs())
+        assert set(outbox) == {'/disparity'}  # as stereo_image_proc
     finally:
         node.destroy_node()
 

@@ -98,6 +98,21 @@ def _grid() -> tuple[SgbmSettings, ...]:
 SGBM_GRID = _grid()
 
 
+@dataclass(frozen=True)
+class BmSettings:
+    """StereoBM settings, named like stereo_image_proc's disparity node parameters (its
+    defaults; stereo_algorithm 0, upstream's default algorithm)."""
+
+    label: str = 'opencv BM, stereo_image_proc defaults'
+    correlation_window_size: int = 15
+    prefilter_size: int = 9
+    prefilter_cap: int = 31
+    texture_threshold: int = 10
+    uniqueness_ratio: int = 15
+    speckle_size: int = 100
+    speckle_range: int = 4
+
+
 def opencv_range(min_disparity: int, max_disparity: float) -> int:
     """The smallest multiple of 16 that covers [min_disparity, max_disparity]."""
     span = max(float(max_disparity) - min_disparity + 1.0, 16.0)
@@ -127,13 +142,7 @@ def opencv_sgbm(
     Raises:
         ValueError: Shapes or dtypes differ, or the range is not a multiple of 16.
     """
-    if left.shape != right.shape or left.ndim != 2:
-        raise ValueError(f'left {left.shape} and right {right.shape} must be equal 2-D shapes')
-    if left.dtype != np.uint8 or right.dtype != np.uint8:
-        raise ValueError(f'images must be uint8, got {left.dtype} and {right.dtype}')
-    if disparity_range <= 0 or disparity_range % 16:
-        raise ValueError(f'disparity_range must be a positive multiple of 16, '
-                         f'got {disparity_range}')
+    _check_pair(left, right, disparity_range)
     matcher = cv2.StereoSGBM.create(
         minDisparity=int(min_disparity),
         numDisparities=int(disparity_range),
@@ -147,8 +156,58 @@ def opencv_sgbm(
         speckleRange=settings.speckle_range,
         mode=settings.mode,
     )
-    raw = matcher.compute(left, right)
+    return _to_pixels(matcher.compute(left, right), min_disparity)
+
+
+def _to_pixels(raw: NDArray[np.int16], min_disparity: int) -> NDArray[np.float32]:
+    """OpenCV's 1/16 px fixed point to float px, NaN where it marks a pixel invalid."""
     disparity = raw.astype(np.float32) / 16.0
     disparity[raw < min_disparity * 16] = np.nan
     return disparity
+
+
+def _check_pair(left: NDArray[np.uint8], right: NDArray[np.uint8], disparity_range: int) -> None:
+    if left.ndim != 2 or left.shape != right.shape:
+        raise ValueError(f'left {left.shape} and right {right.shape} must be 2-D and of one '
+                         'shape')
+    if left.dtype != np.uint8 or right.dtype != np.uint8:
+        raise ValueError(f'images must be uint8, got {left.dtype} and {right.dtype}')
+    if disparity_range <= 0 or disparity_range % 16:
+        raise ValueError(f'disparity_range must be a positive multiple of 16, '
+                         f'got {disparity_range}')
+
+
+def opencv_bm(
+    left: NDArray[np.uint8],
+    right: NDArray[np.uint8],
+    settings: BmSettings = BmSettings(),
+    *,
+    min_disparity: int = 0,
+    disparity_range: int = 64,
+) -> NDArray[np.float32]:
+    """Run StereoBM (block matching, stereo_image_proc's stereo_algorithm 0) on a rectified
+    mono8 pair, set as stereo_image_proc sets it (no left-right check).
+
+    Returns:
+        (H, W) float32 disparity in pixels, NaN where OpenCV marks the pixel invalid.
+
+    Raises:
+        ValueError: Shapes or dtypes differ, the range is not a multiple of 16, or a window
+            is even or outside 5..255.
+    """
+    _check_pair(left, right, disparity_range)
+    for name in ('correlation_window_size', 'prefilter_size'):
+        value = getattr(settings, name)
+        if value % 2 == 0 or not 5 <= value <= 255:
+            raise ValueError(f'{name} must be odd, 5..255 for block matching, got {value}')
+    matcher = cv2.StereoBM.create(numDisparities=int(disparity_range),
+                                  blockSize=settings.correlation_window_size)
+    matcher.setMinDisparity(int(min_disparity))
+    matcher.setPreFilterSize(settings.prefilter_size)
+    matcher.setPreFilterCap(settings.prefilter_cap)
+    matcher.setTextureThreshold(settings.texture_threshold)
+    matcher.setUniquenessRatio(settings.uniqueness_ratio)
+    matcher.setSpeckleWindowSize(settings.speckle_size)
+    matcher.setSpeckleRange(settings.speckle_range)
+    return _to_pixels(matcher.compute(left, right), min_disparity)
 

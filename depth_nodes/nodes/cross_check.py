@@ -14,10 +14,12 @@ ApproximateTime policy). Publishes, with the left disparity's header:
   confidence that falls with the distance (``keep_extrapolated``).
 * ``confidence``: 32FC1 in [0, 1], same size and header (:mod:`depth_nodes.core.confidence`):
   pooled cost distinctiveness, left-right agreement, support and smoothness; 0 on invalid
-  pixels, low on filled ones.
+  pixels, low on filled ones. An all-NaN ``cost_ratio`` (the sgm_stereo node running one
+  of OpenCV's algorithms, which give no matching cost) leaves the distinctiveness out.
 
 The algorithm lives in :mod:`depth_nodes.core.cross_check`. Parameters (all but the
-synchronisation ones change at runtime and apply from the next frame): ``disp12_max_diff``,
+synchronisation ones change at runtime and apply from the next frame): ``disp12_max_diff``
+(0 or -1: no left-right check, stereo_image_proc's meaning),
 ``speckle_size``, ``speckle_range``, ``fill_holes``, ``fill_mode``, ``median_size``,
 ``keep_extrapolated``, ``confidence_window``, ``filled_confidence``.
 
@@ -65,6 +67,9 @@ def _pixels(low: float, high: float) -> Any:
     return check
 
 
+#: disp12_max_diff of 0 or -1 (no left-right check): any difference is consistent.
+NO_CHECK = 1e6
+
 PARAMETERS = [
     ParamSpec('queue_size', 5, 'Synchroniser queue of the three inputs', 1, 1000,
               read_only=True),
@@ -73,8 +78,9 @@ PARAMETERS = [
     ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
               'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
     ParamSpec('disp12_max_diff', 1.0, 'Largest |d_left - d_right| in px of a consistent '
-              'pixel (left-right check), in [0.05, 64]; integer or double',
-              dynamic_typing=True, check=_pixels(0.05, 64.0)),
+              'pixel (left-right check), up to 64; 0 or -1: no check (stereo_image_proc\'s '
+              'meaning); integer or double', dynamic_typing=True,
+              check=_pixels(-1.0, 64.0)),
     ParamSpec('speckle_size', 100, 'Largest area in px of a disparity region removed as a '
               'speckle (0: off)', 0, 100000),
     ParamSpec('speckle_range', 2.0, 'Largest disparity step in px within one region of '
@@ -156,9 +162,13 @@ class CrossCheckNode(DepthNode):
         if cost is None:
             return
         ratio = cost[0]
+        if np.isnan(ratio).all():  # no matching cost (OpenCV): leave distinctiveness out
+            ratio = np.zeros_like(ratio)
+        max_diff = values['disp12_max_diff']
         result = cross_check(
             left.disparity, right.disparity, ratio,
-            disp12_max_diff=values['disp12_max_diff'], speckle_size=values['speckle_size'],
+            disp12_max_diff=max_diff if max_diff > 0 else NO_CHECK,
+            speckle_size=values['speckle_size'],
             speckle_range=values['speckle_range'], fill=values['fill_holes'],
             fill_mode=values['fill_mode'], median_size=values['median_size'],
             keep_outside=values['keep_extrapolated'],

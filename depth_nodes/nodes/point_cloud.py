@@ -35,6 +35,7 @@ import sys
 from collections.abc import Mapping
 from typing import Any
 
+from rclpy.qos import qos_profile_system_default
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
@@ -80,6 +81,8 @@ PARAMETERS = [
     ParamSpec('queue_size', 5, 'Synchroniser queue of the inputs', 1, 1000, read_only=True),
     ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
               'instead of exact stamps', read_only=True),
+    ParamSpec('use_system_default_qos', False, 'Subscribe with the system default QoS '
+              '(reliable) instead of sensor data QoS', read_only=True),
     ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
               'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
     ParamSpec('use_color', True, 'Subscribe left/image_rect_color and add rgb to points2 '
@@ -135,9 +138,10 @@ class PointCloudNode(DepthNode):
         if self.use_confidence:
             inputs.append((Image, 'confidence'))
         tolerance = values['approximate_sync_tolerance_seconds']
-        self.add_synced_inputs(inputs, self._on_synced, queue_size=values['queue_size'],
-                               approximate=values['approximate_sync'],
-                               max_interval=tolerance or None)
+        self.add_synced_inputs(
+            inputs, self._on_synced, queue_size=values['queue_size'],
+            approximate=values['approximate_sync'], max_interval=tolerance or None,
+            qos=qos_profile_system_default if values['use_system_default_qos'] else None)
 
     def _on_synced(self, disparity: DisparityImage, left_info: CameraInfo,
                    right_info: CameraInfo, *rest: Image) -> None:

@@ -8,12 +8,18 @@ ApproximateTime policy). Publishes ``disparity`` (stereo_msgs/DisparityImage, le
 ``cost_ratio`` (sensor_msgs/Image 32FC1, best / second-best aggregated cost of the left
 winner: low means unambiguous), the signals the cross-check node needs.
 
-Parameters share stereo_image_proc's names where the meaning is the same (min_disparity,
-disparity_range, uniqueness_ratio, P1, P2, speckle_size, speckle_range, disp12_max_diff,
-queue_size, approximate_sync, and for the ``opencv`` backend correlation_window_size,
-full_dp, prefilter_cap); all but the synchronisation ones change at runtime and apply from
-the next frame. ``backend: opencv`` runs OpenCV's StereoSGBM for comparison (it publishes
-``disparity`` only).
+Parameters: every parameter of stereo_image_proc's (Jazzy) disparity node, with its
+meaning and range (``stereo_algorithm``: 0 OpenCV StereoBM, 1 OpenCV StereoSGBM, as
+upstream, and 2 this package's census SGM, the default; ``sgbm_mode``, ``full_dp``,
+``prefilter_size``, ``prefilter_cap``, ``correlation_window_size``, ``texture_threshold``,
+``min_disparity``, ``disparity_range``, ``uniqueness_ratio``, ``speckle_size``,
+``speckle_range``, ``disp12_max_diff``, ``P1``, ``P2``, ``queue_size``,
+``approximate_sync``, ``approximate_sync_tolerance_seconds``, ``use_system_default_qos``),
+so a stereo_image_proc parameter file runs unchanged and gives OpenCV the same settings;
+plus the census matcher's own. All but the synchronisation ones change at runtime and apply
+from the next frame. The OpenCV algorithms also publish ``disparity_right`` (the mirrored
+pair matched again) and an all-NaN ``cost_ratio``, so the cross-check and the rest of the
+graph run on them too; ``right_view: false`` publishes ``disparity`` only.
 
 The census matcher's ``disparity`` is checked like StereoSGBM's: uniqueness, a left-right
 check against the right view taken from the same volume (``disp12_max_diff``), speckle
@@ -42,10 +48,11 @@ from typing import Any
 
 import cv2
 import numpy as np
+from rclpy.qos import qos_profile_system_default
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
-from depth_nodes.core.baseline import SgbmSettings, opencv_sgbm
+from depth_nodes.core.baseline import BmSettings, SgbmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
@@ -53,16 +60,8 @@ from depth_nodes.core.sgm.select import SUBPIXEL_MODES, SUBPIXEL_STEP
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
+from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec, one_of
 from depth_nodes.ros.workers import OrderedWorkers, use_threads
-
-BACKENDS = ('census_sgm', 'opencv')
-
-
-def _one_of(choices: tuple[str, ...] | list[str]) -> Any:
-    def check(value: Any) -> str | None:
-        return None if value in choices else f'must be one of {", ".join(map(str, choices))}'
-    return check
 
 
 def _odd(value: int) -> str | None:
@@ -73,6 +72,36 @@ def _paths(value: int) -> str | None:
     return None if value in VERTICAL_DIRECTIONS else 'must be 4, 5, 8 or 16'
 
 
+#: stereo_algorithm: stereo_image_proc's 0 (OpenCV block matching) and 1 (OpenCV
+#: semi-global block matching), and this package's census SGM.
+BLOCK_MATCHING, SEMI_GLOBAL_BLOCK_MATCHING, CENSUS_SGM = 0, 1, 2
+ALGORITHMS = {BLOCK_MATCHING: 'OpenCV StereoBM', SEMI_GLOBAL_BLOCK_MATCHING: 'OpenCV StereoSGBM',
+              CENSUS_SGM: 'census SGM (this package)'}
+#: sgbm_mode: OpenCV's StereoSGBM modes, stereo_image_proc's codes.
+SGBM_MODES = {0: cv2.STEREO_SGBM_MODE_SGBM, 1: cv2.STEREO_SGBM_MODE_HH,
+              2: cv2.STEREO_SGBM_MODE_SGBM_3WAY, 3: cv2.STEREO_SGBM_MODE_HH4}
+#: stereo_image_proc's defaults where the OpenCV algorithms and the census matcher differ
+#: (P1 / P2 are in the units of each algorithm's cost). A node started with stereo_algorithm
+#: 0 or 1 takes these, so a stereo_image_proc parameter file gives OpenCV the settings it
+#: gets upstream; with 2 (the default) the census matcher's own. Changing stereo_algorithm
+#: at runtime keeps the current values.
+UPSTREAM_DEFAULTS = {'disparity_range': 64, 'P1': 200.0, 'P2': 400.0, 'uniqueness_ratio': 15.0,
+                     'speckle_range': 4, 'disp12_max_diff': 0}
+CENSUS_DEFAULTS = {'disparity_range': 128, 'P1': 18.0, 'P2': 220.0, 'uniqueness_ratio': 10.0,
+                   'speckle_range': 2, 'disp12_max_diff': 2}
+#: The largest P2 of the census matcher with 4 paths (16-bit sums; fewer for more paths).
+P2_MAX = 65535 // 4 - OUT_OF_RANGE_COST
+
+
+def _default(name: str) -> Any:
+    """The default of a parameter whose default follows stereo_algorithm (see above)."""
+    def pick(values: Mapping[str, Any]) -> Any:
+        table = CENSUS_DEFAULTS if values.get('stereo_algorithm') == CENSUS_SGM else \
+            UPSTREAM_DEFAULTS
+        return table[name]
+    return pick
+
+
 PARAMETERS = [
     IMAGE_TRANSPORT,
     ParamSpec('queue_size', 5, 'Synchroniser queue of the four inputs', 1, 1000,
@@ -81,74 +110,100 @@ PARAMETERS = [
               'instead of exact stamps', read_only=True),
     ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
               'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
-    ParamSpec('backend', 'census_sgm', 'census_sgm (this package) or opencv (StereoSGBM)',
-              check=_one_of(BACKENDS)),
+    ParamSpec('use_system_default_qos', False, 'Subscribe with the system default QoS '
+              '(reliable) instead of sensor data QoS', read_only=True),
+    ParamSpec('stereo_algorithm', CENSUS_SGM, 'Matcher: ' + ', '.join(
+        f'{code} {name}' for code, name in ALGORITHMS.items()) + ' (0 and 1 as '
+        'stereo_image_proc; a node started with 0 or 1 takes stereo_image_proc\'s '
+        'defaults for P1, P2, uniqueness_ratio, speckle_range, disp12_max_diff, '
+        'disparity_range)', min(ALGORITHMS), max(ALGORITHMS)),
     ParamSpec('min_disparity', 0, 'Smallest disparity searched, px (may be negative)',
               -2048, 2048),
-    ParamSpec('disparity_range', 128, 'Number of disparities searched (any number with '
-              'census_sgm, a multiple of 16 with opencv)', 1, 4096),
-    ParamSpec('P1', 18.0, 'Penalty of a 1 px disparity change between neighbours',
-              0.0, 4000.0),
-    ParamSpec('P2', 220.0, 'Penalty of a larger disparity change (>= P1)', 0.0, 7936.0),
-    ParamSpec('uniqueness_ratio', 10.0, 'Percent by which the best cost must beat the best '
-              'non-neighbouring disparity', 0.0, 99.0),
-    ParamSpec('paths', 8, 'Aggregation paths: 4, 5 (one pass), 8 or 16', 4, 16, check=_paths),
-    ParamSpec('census_width', 5, 'Census window width (odd)', 3, 9, check=_odd),
-    ParamSpec('census_height', 5, 'Census window height (odd)', 3, 9, check=_odd),
-    ParamSpec('census_weight', 1, 'Weight of the census Hamming cost', 0, 8),
-    ParamSpec('intensity_weight', 1, 'Weight of the intensity cost (0: census only)', 0, 8),
-    ParamSpec('intensity_cost', 'bt', 'Intensity cost: bt (Birchfield-Tomasi) or ad',
-              check=_one_of(('bt', 'ad'))),
-    ParamSpec('intensity_truncation', 30, 'Cap of the intensity cost, grey levels', 1, 255),
-    ParamSpec('p2_adaptive_scale', 8.0, 'Grey-level scale of the image-adaptive P2 (0: '
-              'constant P2)', 0.0, 255.0),
-    ParamSpec('subpixel', 'parabola', 'Sub-pixel refinement: parabola, equiangular or none',
-              check=_one_of(list(SUBPIXEL_MODES))),
-    ParamSpec('median_filter', False, '3x3 median on the left disparity'),
-    ParamSpec('match_brightness', True, 'census_sgm: give the right image the left\'s mean '
+    ParamSpec('disparity_range', _default('disparity_range'), 'Number of disparities searched '
+              '(any number with census SGM, a multiple of 16 with OpenCV)', 1, 4096),
+    ParamSpec('P1', _default('P1'), 'Penalty of a 1 px disparity change between neighbours '
+              '(semi-global algorithms)', 0.0, 4000.0),
+    ParamSpec('P2', _default('P2'), 'Penalty of a larger disparity change (>= P1; census '
+              f'SGM: at most {P2_MAX} with 4 paths, 65535 / paths - {OUT_OF_RANGE_COST} '
+              'otherwise)', 0.0, float(P2_MAX)),
+    ParamSpec('uniqueness_ratio', _default('uniqueness_ratio'), 'Percent by which the best '
+              'cost must beat the best non-neighbouring disparity', 0.0, 100.0),
+    ParamSpec('paths', 8, 'census SGM: aggregation paths 4, 5 (one pass), 8 or 16', 4, 16,
+              check=_paths),
+    ParamSpec('census_width', 5, 'census SGM: census window width (odd)', 3, 9, check=_odd),
+    ParamSpec('census_height', 5, 'census SGM: census window height (odd)', 3, 9, check=_odd),
+    ParamSpec('census_weight', 1, 'census SGM: weight of the census Hamming cost', 0, 8),
+    ParamSpec('intensity_weight', 1, 'census SGM: weight of the intensity cost (0: census '
+              'only)', 0, 8),
+    ParamSpec('intensity_cost', 'bt', 'census SGM: intensity cost, bt (Birchfield-Tomasi) or '
+              'ad', check=one_of(('bt', 'ad'))),
+    ParamSpec('intensity_truncation', 30, 'census SGM: cap of the intensity cost, grey levels',
+              1, 255),
+    ParamSpec('p2_adaptive_scale', 8.0, 'census SGM: grey-level scale of the image-adaptive '
+              'P2 (0: constant P2)', 0.0, 255.0),
+    ParamSpec('subpixel', 'parabola', 'census SGM: sub-pixel refinement, parabola, '
+              'equiangular or none', check=one_of(list(SUBPIXEL_MODES))),
+    ParamSpec('median_filter', False, 'census SGM: 3x3 median on the left disparity'),
+    ParamSpec('match_brightness', True, 'census SGM: give the right image the left\'s mean '
               'and spread before the intensity cost (a gain or offset between the cameras)'),
-    ParamSpec('border_cost', 3.5, 'census_sgm: cost of a disparity whose match is outside '
+    ParamSpec('border_cost', 3.5, 'census SGM: cost of a disparity whose match is outside '
               'the right image, in units of the frame\'s mean best cost; the left border '
               'strip then takes its neighbours\' disparity (0: never chosen)', 0.0, 100.0),
-    ParamSpec('border_extrapolation', 0.25, 'census_sgm: how far past the image border an '
+    ParamSpec('border_extrapolation', 0.25, 'census SGM: how far past the image border an '
               'extrapolated disparity is published, as a fraction of disparity_range',
               0.0, 1.0),
     ParamSpec('speckle_size', 100, 'Largest area in px of a disparity region removed as a '
               'speckle (0: off)', 0, 100000),
-    ParamSpec('speckle_range', 2, 'Largest disparity step in px within one speckle region',
-              0, 64),
-    ParamSpec('disp12_max_diff', 2, 'Left-right check: largest |d_left - d_right| in px '
-              '(0 or -1: off)', -1, 128),
-    ParamSpec('threads', 0, 'Threads of the matcher (both backends); 0 (or more than the '
+    ParamSpec('speckle_range', _default('speckle_range'), 'Largest disparity step in px '
+              'within one speckle region', 0, 64),
+    ParamSpec('disp12_max_diff', _default('disp12_max_diff'), 'Left-right check: largest '
+              '|d_left - d_right| in px; 0 or -1: off (census SGM and OpenCV SGBM)', -1, 128),
+    ParamSpec('threads', 0, 'Threads of the matcher (every algorithm); 0 (or more than the '
               'cores): every core. In a '
               'graph of several processes on few cores, 1 wastes less CPU on waiting '
               'threads (see the README, bench --live)', 0, 1024),
-    ParamSpec('parallel_frames', 1, 'census_sgm: frames matched at once, each on its own '
+    ParamSpec('parallel_frames', 1, 'census SGM: frames matched at once, each on its own '
               'thread with its own buffers (640x480x128: 48 MB with 5 paths, 129 MB with 8); '
               '2 keeps two cores busy without per-row synchronisation (see the README, '
               'bench --live)', 1, 16,
               read_only=True),
-    ParamSpec('correlation_window_size', 5, 'opencv backend: block size (odd)', 1, 255,
-              check=_odd),
-    ParamSpec('full_dp', True, 'opencv backend: MODE_HH (8 paths) instead of MODE_SGBM'),
-    ParamSpec('prefilter_cap', 63, 'opencv backend: prefilter cap', 1, 63),
+    ParamSpec('correlation_window_size', 15, 'OpenCV: matched block size (odd; block '
+              'matching 5..255)', 1, 255, check=_odd),
+    ParamSpec('sgbm_mode', 0, 'OpenCV SGBM: ' + ', '.join(
+        f'{code} {name}' for code, name in zip(SGBM_MODES, (
+            'SGBM', 'HH', 'SGBM_3WAY', 'HH4'), strict=True)), 0, 3),
+    ParamSpec('full_dp', False, 'OpenCV SGBM: the full (8-path) variant, MODE_HH, whatever '
+              'sgbm_mode says'),
+    ParamSpec('prefilter_size', 9, 'OpenCV block matching: normalisation window (odd)',
+              5, 255, check=_odd),
+    ParamSpec('prefilter_cap', 31, 'OpenCV: bound on the prefiltered values', 1, 63),
+    ParamSpec('right_view', True, 'OpenCV: also match the mirrored pair for disparity_right '
+              '(the cross-check\'s input; doubles the time) and publish a NaN cost_ratio '
+              '(OpenCV gives no matching cost); false publishes disparity only, as '
+              'stereo_image_proc'),
+    ParamSpec('texture_threshold', 10, 'OpenCV block matching: least texture (sum of the '
+              'prefiltered window) of a kept pixel', 0, 10000),
 ]
 
 
 def _cross_check(values: Mapping[str, Any]) -> str | None:
-    """Reject combinations no matcher accepts, with the reason."""
-    if values['P2'] < values['P1']:
-        return f'P2 ({values["P2"]}) must be >= P1 ({values["P1"]})'
-    limit = 65535 // values['paths'] - OUT_OF_RANGE_COST
-    if values['P2'] > limit:
-        return f'P2 ({values["P2"]}) must be <= {limit} with {values["paths"]} paths'
-    if values['census_width'] * values['census_height'] - 1 > 63:
-        return 'census window has more than 63 neighbours (at most 9x7)'
-    if values['census_weight'] == 0 and values['intensity_weight'] == 0:
-        return 'census_weight and intensity_weight cannot both be 0'
-    if values['backend'] == 'opencv' and values['disparity_range'] % 16:
+    """Reject combinations the chosen matcher does not accept, with the reason."""
+    algorithm = values['stereo_algorithm']
+    if algorithm == CENSUS_SGM:
+        params = sgm_params(values)
+        try:
+            params.validate()
+        except ValueError as exc:
+            return str(exc)
+        return None
+    if values['disparity_range'] % 16:
         return (f'disparity_range ({values["disparity_range"]}) must be a multiple of 16 '
-                'with the opencv backend')
+                f'with {ALGORITHMS[algorithm]}')
+    if algorithm == BLOCK_MATCHING and values['correlation_window_size'] < 5:
+        return (f'correlation_window_size ({values["correlation_window_size"]}) must be at '
+                'least 5 with block matching')
+    if algorithm == SEMI_GLOBAL_BLOCK_MATCHING and values['P2'] < values['P1']:
+        return f'P2 ({values["P2"]}) must be >= P1 ({values["P1"]})'
     return None
 
 
@@ -172,12 +227,35 @@ def sgm_params(values: Mapping[str, Any]) -> SgmParams:
 
 def opencv_settings(values: Mapping[str, Any]) -> SgbmSettings:
     """StereoSGBM settings of a parameter snapshot (names as stereo_image_proc's)."""
+    mode = cv2.STEREO_SGBM_MODE_HH if values['full_dp'] else SGBM_MODES[values['sgbm_mode']]
     return SgbmSettings(
-        'opencv', mode=cv2.STEREO_SGBM_MODE_HH if values['full_dp'] else cv2.STEREO_SGBM_MODE_SGBM,
-        correlation_window_size=values['correlation_window_size'], P1=round(values['P1']),
-        P2=round(values['P2']), uniqueness_ratio=round(values['uniqueness_ratio']),
+        'opencv', mode=mode, correlation_window_size=values['correlation_window_size'],
+        P1=round(values['P1']), P2=round(values['P2']),
+        uniqueness_ratio=round(values['uniqueness_ratio']),
         speckle_size=values['speckle_size'], speckle_range=values['speckle_range'],
         disp12_max_diff=values['disp12_max_diff'], prefilter_cap=values['prefilter_cap'])
+
+
+def bm_settings(values: Mapping[str, Any]) -> BmSettings:
+    """StereoBM settings of a parameter snapshot (stereo_image_proc sets no left-right
+    check for block matching, nor does this)."""
+    return BmSettings(
+        'opencv BM', correlation_window_size=values['correlation_window_size'],
+        prefilter_size=values['prefilter_size'], prefilter_cap=values['prefilter_cap'],
+        texture_threshold=values['texture_threshold'],
+        uniqueness_ratio=round(values['uniqueness_ratio']),
+        speckle_size=values['speckle_size'], speckle_range=values['speckle_range'])
+
+
+def opencv_disparity(left: Any, right: Any, values: Mapping[str, Any]) -> Any:
+    """The disparity of OpenCV's algorithm of ``values`` (stereo_algorithm 0 or 1) on a
+    grey pair (16-bit images are taken at their top 8 bits, as cv_bridge's mono8 would)."""
+    pair = [np.ascontiguousarray(a >> 8 if a.dtype == np.uint16 else a, np.uint8)
+            for a in (left, right)]
+    lo, n = values['min_disparity'], values['disparity_range']
+    if values['stereo_algorithm'] == BLOCK_MATCHING:
+        return opencv_bm(*pair, bm_settings(values), min_disparity=lo, disparity_range=n)
+    return opencv_sgbm(*pair, opencv_settings(values), min_disparity=lo, disparity_range=n)
 
 
 def _encoding(msg: Any) -> str:
@@ -209,7 +287,8 @@ class SgmStereoNode(DepthNode):
              (Image, 'right/image_rect', values['image_transport']),
              (CameraInfo, 'right/camera_info')],
             self.on_frame, queue_size=values['queue_size'],
-            approximate=values['approximate_sync'], max_interval=tolerance or None)
+            approximate=values['approximate_sync'], max_interval=tolerance or None,
+            qos=qos_profile_system_default if values['use_system_default_qos'] else None)
 
     def _grey_pair(self, left_msg: Any, right_msg: Any) -> tuple[Any, Any] | None:
         """Both images (raw or compressed, any camera encoding) as grey arrays of one size
@@ -254,22 +333,26 @@ class SgmStereoNode(DepthNode):
         common = {'focal': stereo.focal, 'baseline': stereo.baseline, 'min_disparity': lo,
                   'max_disparity': lo + n - 1,
                   'valid_window': (max(0, lo), 0, min(w, w + lo + n - 1), h)}
-        if values['backend'] == 'opencv':  # frame by frame (parallel_frames: census_sgm)
+        right_common = dict(common, valid_window=(max(0, -lo - n + 1), 0, min(w, w - lo), h))
+        if values['stereo_algorithm'] != CENSUS_SGM:  # frame by frame
             start = time.perf_counter()
             use_threads(values['threads'])
-            disparity = opencv_sgbm(np.ascontiguousarray(left, np.uint8),
-                                    np.ascontiguousarray(right, np.uint8),
-                                    opencv_settings(values), min_disparity=lo,
-                                    disparity_range=n)
+            disparity = opencv_disparity(left, right, values)
             self.pub_disparity.publish(build_disparity(disparity, header, delta_d=1 / 16,
                                                        **common))
+            if values['right_view']:  # what the cross-check needs; OpenCV has no cost
+                mirrored = opencv_disparity(right[:, ::-1], left[:, ::-1], values)[:, ::-1]
+                self.pub_disparity_right.publish(build_disparity(
+                    np.ascontiguousarray(mirrored), right_msg.header, delta_d=1 / 16,
+                    **right_common))
+                self.pub_cost_ratio.publish(array_to_image(
+                    np.full((h, w), np.nan, np.float32), '32FC1', header))
             if not self.callback_is_frame_time:
                 self.record_frame_time(time.perf_counter() - start)
             return
         params = sgm_params(values)
         threads = values['threads']
         delta_d = SUBPIXEL_STEP if values['subpixel'] != 'none' else 1.0
-        right_common = dict(common, valid_window=(max(0, -lo - n + 1), 0, min(w, w - lo), h))
 
         def compute() -> tuple[tuple[Any, Any, Any], float]:
             start = time.perf_counter()

@@ -311,11 +311,13 @@ class DepthNode(Node):
         queue_size: int,
         approximate: bool = False,
         max_interval: float | None = None,
+        qos: QoSProfile | int | None = None,
     ) -> ExactTimeSynchronizer | ApproximateTimeSynchronizer:
         """Subscribe to several topics and call ``callback(*msgs)`` for each matched set.
 
         Matching is by header stamp, exact or (``approximate``) by the ApproximateTime
-        policy. An entry ``(Image, topic, transport)`` subscribes that image through a
+        policy; ``qos`` as :meth:`add_input`'s (default sensor data). An entry
+        ``(Image, topic, transport)`` subscribes that image through a
         transport (see :meth:`add_input`). Messages the synchroniser discards are counted
         as drops with the reason ``sync_<why>`` (``sync_unmatched``, ``sync_queue_full``,
         ...), so an image that never found its camera_info is not lost silently.
@@ -344,7 +346,7 @@ class DepthNode(Node):
             return on_message
 
         for index, (msg_type, topic, *transport) in enumerate(inputs):
-            topics.append(self.add_input(msg_type, topic, feed(index),
+            topics.append(self.add_input(msg_type, topic, feed(index), qos=qos,
                                          transport=transport[0] if transport else 'raw'))
         return sync
 

@@ -11,6 +11,7 @@ one consistent set and a change applies from the next frame on.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -42,6 +43,8 @@ class ParamSpec:
     Attributes:
         name: Parameter name.
         default: Default value; its type is the parameter's type unless ``dynamic_typing``.
+            A callable is given the values declared before this one and returns the
+            default (a default that depends on another parameter's start-up value).
         description: One line shown by ``ros2 param describe``.
         min_value: Inclusive lower bound (numbers only).
         max_value: Inclusive upper bound (numbers only).
@@ -92,6 +95,9 @@ class NodeParameters:
         self._lock = threading.Lock()
         values: dict[str, Any] = {}
         for spec in specs:
+            if callable(spec.default):
+                spec = dataclasses.replace(spec, default=spec.default(dict(values)))
+                self._specs[spec.name] = spec
             try:
                 param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
             except ParameterException as exc:

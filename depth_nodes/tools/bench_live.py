@@ -143,8 +143,11 @@ def opencv_graph(config: GraphConfig, paths: int = 8) -> GraphConfig:
         if node.plugin == 'sgm_stereo':
             # StereoSGBM with its usual tuning of the shared filters (the census
             # matcher's own values in the config are not the OpenCV user's)
-            node.parameters.update(backend='opencv', full_dp=opencv_mode(paths) == 'MODE_HH',
-                                   disp12_max_diff=1, speckle_size=100, speckle_range=2)
+            node.parameters.update(
+                stereo_algorithm=1, sgbm_mode=1 if opencv_mode(paths) == 'MODE_HH' else 0,
+                right_view=False,
+                correlation_window_size=5, P1=200.0, P2=800.0, uniqueness_ratio=10.0,
+                prefilter_cap=63, disp12_max_diff=1, speckle_size=100, speckle_range=2)
         if node.plugin == 'point_cloud':
             node.parameters['use_confidence'] = False
             node.parameters.pop('min_confidence', None)
