@@ -2,34 +2,34 @@
 process per node.
 
 For users with a full ROS 2 install
-(`ros2 launch depth_nodes structured_light_pipeline.launch.py`). Like the stereo launch
-file, it reads the graph description `depth-nodes pipeline` and `depth-nodes process` run,
-so they cannot drift apart. The speckle node's speckle_reference in that file is relative
-to the repository root: from anywhere else, give it an absolute path in the config.
+(`ros2 launch depth_nodes structured_light_pipeline.launch.py`). It reads the graph
+description that `depth-nodes pipeline` and `depth-nodes process` run, through the
+package's own ``depth_nodes.ros.launching``, so the three cannot drift apart. Launch
+arguments (all optional): params_file, namespace, left, right, image and image_transport,
+as in the stereo launch file. The speckle node's speckle_reference in its config is
+relative to the repository root: from anywhere else, give it an absolute path there.
 """
 
 import os
 
-import yaml
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+from depth_nodes.ros.launching import LAUNCH_ARGUMENTS, launch_nodes
+
+
+def _nodes(context, *args, **kwargs):
+    config = os.path.join(get_package_share_directory('depth_nodes'), 'config',
+                          'structured_light_pipeline.yaml')
+    given = {name: LaunchConfiguration(name).perform(context) for name in LAUNCH_ARGUMENTS}
+    return [Node(package='depth_nodes', output='screen', **node)
+            for node in launch_nodes(config, **given)]
 
 
 def generate_launch_description():
-    share = get_package_share_directory('depth_nodes')
-    with open(os.path.join(share, 'config', 'structured_light_pipeline.yaml')) as stream:
-        graph = yaml.safe_load(stream)['graph']
-    nodes = [
-        Node(
-            package='depth_nodes',
-            executable=spec['plugin'],
-            name=spec['name'],
-            namespace=spec.get('namespace', '/'),
-            parameters=[spec.get('parameters') or {}],
-            remappings=list((spec.get('remappings') or {}).items()),
-            output='screen',
-        )
-        for spec in graph.get('nodes') or []
-    ]
-    return LaunchDescription(nodes)
+    arguments = [DeclareLaunchArgument(name, default_value='', description=text)
+                 for name, text in LAUNCH_ARGUMENTS.items()]
+    return LaunchDescription([*arguments, OpaqueFunction(function=_nodes)])

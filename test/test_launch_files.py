@@ -67,10 +67,11 @@ def source_prefix(tmp_path: Path) -> Path:
     return prefix
 
 
-def run_launch_file(path: Path, prefix: Path,
-                    monkeypatch: pytest.MonkeyPatch) -> list[dict[str, Any]]:
+def run_launch_file(path: Path, prefix: Path, monkeypatch: pytest.MonkeyPatch,
+                    arguments: dict[str, str] | None = None) -> list[dict[str, Any]]:
     """Call ``generate_launch_description()`` of ``path`` with ``prefix`` as the only
-    AMENT_PREFIX_PATH entry; returns the keyword arguments of every Node it creates."""
+    AMENT_PREFIX_PATH entry, then its OpaqueFunctions with the launch ``arguments`` (the
+    declared defaults otherwise); returns the keyword arguments of every Node created."""
     calls: list[dict[str, Any]] = []
 
     class LaunchDescription:
@@ -85,13 +86,36 @@ def run_launch_file(path: Path, prefix: Path,
             self.kwargs = kwargs
             calls.append(kwargs)
 
+    class DeclareLaunchArgument:
+        def __init__(self, name: str, *, default_value: str = '', description: str = '',
+                     **kwargs: Any) -> None:
+            assert not kwargs, f'{path.name}: DeclareLaunchArgument() got {sorted(kwargs)}'
+            self.name, self.default_value, self.description = name, default_value, description
+
+    class OpaqueFunction:
+        def __init__(self, *, function: Any, **kwargs: Any) -> None:
+            self.function = function
+
+    class LaunchConfiguration:
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def perform(self, context: Any) -> str:
+            return str(context.launch_configurations[self.name])
+
     launch = types.ModuleType('launch')
     launch.LaunchDescription = LaunchDescription  # type: ignore[attr-defined]
+    launch_actions = types.ModuleType('launch.actions')
+    launch_actions.DeclareLaunchArgument = DeclareLaunchArgument  # type: ignore[attr-defined]
+    launch_actions.OpaqueFunction = OpaqueFunction  # type: ignore[attr-defined]
+    substitutions = types.ModuleType('launch.substitutions')
+    substitutions.LaunchConfiguration = LaunchConfiguration  # type: ignore[attr-defined]
     launch_ros = types.ModuleType('launch_ros')
     actions = types.ModuleType('launch_ros.actions')
     actions.Node = Node  # type: ignore[attr-defined]
     launch_ros.actions = actions  # type: ignore[attr-defined]
-    for name, module in (('launch', launch), ('launch_ros', launch_ros),
+    for name, module in (('launch', launch), ('launch.actions', launch_actions),
+                         ('launch.substitutions', substitutions), ('launch_ros', launch_ros),
                          ('launch_ros.actions', actions)):
         monkeypatch.setitem(sys.modules, name, module)
     monkeypatch.setenv('AMENT_PREFIX_PATH', str(prefix))
@@ -105,7 +129,16 @@ def run_launch_file(path: Path, prefix: Path,
     spec.loader.exec_module(module)
     description = module.generate_launch_description()
     assert isinstance(description, LaunchDescription)
-    assert [e.kwargs for e in description.entities if isinstance(e, Node)] == calls
+    declared = {e.name: e.default_value for e in description.entities
+                if isinstance(e, DeclareLaunchArgument)}
+    unknown = set(arguments or {}) - set(declared)
+    assert not unknown, f'{path.name} declares no launch arguments {sorted(unknown)}'
+    context = types.SimpleNamespace(launch_configurations={**declared, **(arguments or {})})
+    nodes = [e for e in description.entities if isinstance(e, Node)]
+    for entity in description.entities:
+        if isinstance(entity, OpaqueFunction):
+            nodes += entity.function(context)
+    assert [n.kwargs for n in nodes] == calls
     return calls
 
 
@@ -180,8 +213,8 @@ def test_a_mismatch_with_the_config_is_caught(tmp_path: Path,
     launch_dir.mkdir()
     drifted = launch_dir / 'stereo_pipeline.launch.py'
     source = (REPO / 'launch' / 'stereo_pipeline.launch.py').read_text()
-    text = source.replace("parameters=[spec.get('parameters') or {}]",
-                          "parameters=[{**(spec.get('parameters') or {}), 'queue_size': 9}]")
+    text = source.replace("output='screen', **node)",
+                          "output='screen', **{**node, 'namespace': '/elsewhere'})")
     assert text != source, 'update this test to the launch file'
     drifted.write_text(text)
     with pytest.raises(AssertionError, match=r'vs stereo_pipeline\.yaml'):
@@ -192,3 +225,39 @@ def test_structured_light_pipeline_launch_mirrors_its_config() -> None:
     launch = REPO / 'launch' / 'structured_light_pipeline.launch.py'
     assert launch in LAUNCH_FILES
     assert mirrored_config(launch, REPO) == REPO / 'config' / 'structured_light_pipeline.yaml'
+
+
+def test_launch_arguments_take_a_driver_and_a_stereo_image_proc_file(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`ros2 launch depth_nodes stereo_pipeline.launch.py namespace:=/camera
+    image_transport:=compressed params_file:=sip.yaml`: the nodes move to the driver's
+    names, the rectifiers read compressed images, and the file's `disparity_node` entry
+    reaches the matcher (launch_ros alone would match it by node name only)."""
+    params = tmp_path / 'sip.yaml'
+    params.write_text('disparity_node:\n  ros__parameters: {stereo_algorithm: 1, '
+                      'correlation_window_size: 7, disparity_range: 64}\n'
+                      '/**:\n  ros__parameters: {disp12_max_diff: 0}\n')
+    calls = run_launch_file(REPO / 'launch' / 'stereo_pipeline.launch.py',
+                            source_prefix(tmp_path), monkeypatch,
+                            {'namespace': '/camera', 'image_transport': 'compressed',
+                             'params_file': str(params)})
+    by_name = {c['name']: c for c in calls}
+    assert by_name['rectify_left']['namespace'] == '/camera/left'
+    assert by_name['rectify_left']['parameters'][0]['image_transport'] == 'compressed'
+    assert 'image_transport' not in by_name['sgm_stereo']['parameters'][0]
+    sgm = by_name['sgm_stereo']['parameters'][0]
+    assert (sgm['stereo_algorithm'], sgm['correlation_window_size'], sgm['disp12_max_diff'],
+            sgm['disparity_range']) == (1, 7, 0, 64)
+    assert by_name['cross_check']['parameters'][0]['disp12_max_diff'] == 0
+    assert by_name['sgm_stereo']['namespace'] == '/camera'
+
+
+def test_a_parameter_file_entry_for_no_node_stops_the_launch(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from depth_nodes.errors import ConfigError
+
+    params = tmp_path / 'typo.yaml'
+    params.write_text('sgm_stero:\n  ros__parameters: {P2: 300.0}\n')
+    with pytest.raises(ConfigError, match='entries sgm_stero match no node'):
+        run_launch_file(REPO / 'launch' / 'stereo_pipeline.launch.py',
+                        source_prefix(tmp_path), monkeypatch, {'params_file': str(params)})

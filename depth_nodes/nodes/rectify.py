@@ -66,6 +66,8 @@ PARAMETERS = [
 class RectifyNode(DepthNode):
     """Undistorts and rectifies one camera's raw images with its CameraInfo."""
 
+    reads_camera_images = True
+
     def __init__(self, node_name: str = 'rectify', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS)

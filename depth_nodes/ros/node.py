@@ -136,6 +136,10 @@ class DepthNode(Node):
             cli_args, ...).
     """
 
+    #: The node reads images straight from a camera driver (its ``image_transport`` is
+    #: the driver's): the launch files' ``image_transport`` argument sets it.
+    reads_camera_images = False
+
     def __init__(self, node_name: str, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.inputs: list[InputSpec] = []
