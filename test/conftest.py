@@ -52,6 +52,21 @@ def ros_env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
     return env
 
 
+#: Seconds a node process may take to start (imports, numba cache) before a fixture gives up.
+START_TIMEOUT = 120.0
+
+
+def graph_env() -> dict[str, str]:
+    """Environment of a fresh isolated graph (as ros_env, but not tied to one test): its
+    own ROS_DOMAIN_ID, localhost-only discovery, the test nodes importable."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(next(_DOMAINS))
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env.pop('ROS_STATIC_PEERS', None)
+    env['PYTHONPATH'] = os.pathsep.join(filter(None, [str(TEST_DIR), env.get('PYTHONPATH')]))
+    return env
+
+
 def run_cli(args: list[str], env: dict[str, str] | None = None,
             timeout: float = 300) -> subprocess.CompletedProcess[str]:
     """Run `depth-nodes ARGS` in a subprocess, as a user would."""

@@ -165,3 +165,51 @@ def test_a_node_that_ignores_ctrl_c_is_aborted_with_its_stacks_in_its_log(
         time.sleep(0.01)
     assert graph.stop() == {'/hang': -6}  # SIGABRT, not a kill
     assert 'in wait_forever' in graph.log('/hang')
+
+
+def test_transient_local_topics_keep_their_qos_through_record_and_play(
+        tmp_path: Path, context: Context) -> None:
+    """`record` stores the offered QoS in the bag's metadata (as rosbag2 does) and `play`
+    offers it again: a subscriber that comes after the message was played still gets a
+    transient-local (latched, like /tf_static) one; remapped with --remap."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    node = rclpy.create_node('latched_talker', context=context)
+    publisher = node.create_publisher(Header, '/calibration', latched)
+    publisher.publish(Header(frame_id='once'))
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        recorded = run_cli(['record', str(tmp_path / 'rec'), '--topics', '/calibration',
+                            '--max-messages', '1', '--duration', '60'],
+                           env=dict(os.environ), timeout=120)
+        assert recorded.returncode == 0, recorded.stderr
+        with BagReader(tmp_path / 'rec') as reader:
+            offered = reader.qos['/calibration']
+        assert [q.durability.name for q in offered] == ['TRANSIENT_LOCAL']
+        assert [q.reliability.name for q in offered] == ['RELIABLE']
+        player = subprocess.Popen(
+            [sys.executable, '-m', 'depth_nodes.tools.cli', 'play', str(tmp_path / 'rec'),
+             '--remap', '/calibration:=/calibration_played', '--linger', '30'],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ),
+            cwd=REPO)
+        try:
+            time.sleep(5)  # the message has been published, to nobody
+            got: list[str] = []
+            node.create_subscription(Header, '/calibration_played',
+                                     lambda msg: got.append(msg.frame_id), latched)
+            deadline = time.monotonic() + 20
+            while not got and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert got == ['once']
+        finally:
+            player.send_signal(subprocess.signal.SIGINT)
+            _, err = player.communicate(timeout=30)
+        assert player.returncode == 0, err
+    finally:
+        executor.shutdown()
+        node.destroy_node()

@@ -3,7 +3,6 @@ the node's reasons for refusing), dump into a params file that another node star
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
@@ -14,27 +13,12 @@ import pytest
 import yaml
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 
-from conftest import _DOMAINS, REPO, TEST_DIR, interrupt, run_cli
+from conftest import REPO, START_TIMEOUT, graph_env, interrupt, run_cli
 from depth_nodes.tools.param import coerce_to_declared, nest, parse_value, to_python
 
 pytestmark = pytest.mark.ros
 
 NODE = '/stereo/sgm_stereo'
-#: Seconds a node may take to start (imports, numba cache) before its fixture gives up.
-START_TIMEOUT = 120.0
-
-
-def _graph_env() -> dict[str, str]:
-    """Environment of a fresh isolated graph (as conftest's ros_env, but not tied to one
-    test): its own ROS_DOMAIN_ID, localhost-only discovery."""
-    env = dict(os.environ)
-    env['ROS_DOMAIN_ID'] = str(next(_DOMAINS))
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env.pop('ROS_STATIC_PEERS', None)
-    env['PYTHONPATH'] = os.pathsep.join(filter(None, [str(TEST_DIR), env.get('PYTHONPATH')]))
-    return env
-
-
 def _start_sgm_node(env: dict[str, str], *ros_args: str) -> subprocess.Popen[str]:
     """sgm_stereo in namespace /stereo, once `param list` reaches it."""
     proc = subprocess.Popen(
@@ -56,7 +40,7 @@ def _start_sgm_node(env: dict[str, str], *ros_args: str) -> subprocess.Popen[str
 def graph() -> Iterator[dict[str, str]]:
     """One sgm_stereo node shared by the tests of this module; yields the environment
     that reaches it. Tests that set values each use parameters of their own."""
-    env = _graph_env()
+    env = graph_env()
     proc = _start_sgm_node(env)
     try:
         yield env
@@ -153,7 +137,7 @@ def test_set_int_into_double_parameter(graph: dict[str, str]) -> None:
 @pytest.mark.parametrize(('name', 'value', 'reason', 'kept'), [
     ('disparity_range', '0', 'Parameter disparity_range out of range. Min: 1, Max: 4096, '
      'value: 0', 'Integer value is: 128'),
-    ('P2', '10', 'P2 (10.0) must be >= P1 (18.0)', 'Double value is: 220.0'),
+    ('P2', '10', 'SGM parameter P2=10: must be >= P1 (18)', 'Double value is: 220.0'),
     ('census_width', '4', "census_width=4 rejected: must be odd", 'Integer value is: 5'),
     ('census_weight', 'abc', "Wrong parameter type, expected 'Type.INTEGER' got "
      "'Type.STRING'", 'Integer value is: 1'),
@@ -220,7 +204,7 @@ def test_dump_round_trips_through_params_file(graph: dict[str, str], tmp_path: P
     params_file.write_text(dumped.stdout)
 
     # the same node name, in a graph of its own, started from the file
-    env = _graph_env()
+    env = graph_env()
     proc = _start_sgm_node(env, '--params-file', str(params_file))
     try:
         assert _get(env, 'p2_adaptive_scale') == 'Double value is: 12.5'

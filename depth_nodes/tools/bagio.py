@@ -12,7 +12,7 @@ import importlib
 import struct
 import zlib
 from collections import Counter
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -107,9 +107,13 @@ class BagReader:
             raise BagError(f'cannot open bag {self.path}: {_one_line(exc)}') from None
         self.topics: dict[str, str] = {}
         self.counts: Counter[str] = Counter()
+        #: The QoS profiles each topic's publishers offered when it was recorded (rosbag2's
+        #: offered_qos_profiles; empty when the bag does not say).
+        self.qos: dict[str, list[Any]] = {}
         for conn in self._reader.connections:
             self.topics[conn.topic] = conn.msgtype
             self.counts[conn.topic] += conn.msgcount
+            self.qos[conn.topic] = list(getattr(conn.ext, 'offered_qos_profiles', None) or [])
         self.custom_data: dict[str, str] = dict(self._reader.storage.metadata.custom or {})
 
     @property
@@ -214,8 +218,13 @@ class BagWriter:
         """Store a key/value string in the bag's metadata (e.g. the generator's seed)."""
         self._writer.set_custom_data(key, value)
 
-    def write(self, topic: str, msg: Any, timestamp: int, msgtype: str | None = None) -> None:
-        """Write one message (an rclpy message object, or CDR bytes with ``msgtype``)."""
+    def write(self, topic: str, msg: Any, timestamp: int, msgtype: str | None = None,
+              qos: Sequence[Any] = ()) -> None:
+        """Write one message (an rclpy message object, or CDR bytes with ``msgtype``).
+
+        ``qos``: the QoS profiles the topic's publishers offered (rosbags ``Qos`` tuples),
+        stored in the bag's metadata with the topic's first message, as rosbag2 does.
+        """
         if isinstance(msg, bytes | bytearray | memoryview):
             if msgtype is None:
                 raise BagError(f'writing raw bytes to {topic} needs its message type')
@@ -227,7 +236,8 @@ class BagWriter:
         if conn is None:
             if msgtype not in _TYPESTORE.types:
                 raise BagError(f'message type {msgtype} (topic {topic}) is unknown to rosbags')
-            conn = self._writer.add_connection(topic, msgtype, typestore=_TYPESTORE)
+            conn = self._writer.add_connection(topic, msgtype, typestore=_TYPESTORE,
+                                               offered_qos_profiles=list(qos))
             self._connections[topic] = conn
         elif conn.msgtype != msgtype:
             raise BagError(f'topic {topic} has type {conn.msgtype}; cannot write a {msgtype}')

@@ -190,9 +190,15 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
 def _cmd_play(args: argparse.Namespace) -> int:
     from depth_nodes.tools.live import PlayOptions, play_bag
 
+    remap = {}
+    for rule in args.remap or []:
+        source, sep, target = rule.partition(':=')
+        if not sep or not source or not target:
+            raise ConfigError(f'--remap {rule!r}: expected FROM:=TO')
+        remap[source] = target
     options = PlayOptions(rate=args.rate, loop=args.loop, clock=args.clock, topics=args.topics,
                           wait_for_subscribers=args.wait_for_subscribers, delay=args.delay,
-                          linger=args.linger)
+                          linger=args.linger, restamp=not args.keep_stamps, remap=remap)
     with signals.graceful():
         count = play_bag(args.bag, options, log=sys.stdout)
     print(f'played {count} messages')
@@ -218,7 +224,11 @@ def _cmd_record(args: argparse.Namespace) -> int:
 def _cmd_param(args: argparse.Namespace) -> int:
     from depth_nodes.tools import param
 
-    if args.verb == 'list':
+    if args.verb == 'list' and args.node is None:
+        for node, names in param.list_all_parameters(timeout=args.timeout).items():
+            print(f'{node}:')
+            print('\n'.join(f'  {name}' for name in names))
+    elif args.verb == 'list':
         print('\n'.join(param.list_parameters(args.node, timeout=args.timeout)))
     elif args.verb == 'get':
         value = param.get_parameter(args.node, args.name, timeout=args.timeout)
@@ -231,11 +241,57 @@ def _cmd_param(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_eval(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.evaluate import evaluate_bag
+def _cmd_node(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.introspect import list_nodes
 
+    print('\n'.join(list_nodes(wait=args.wait)))
+    return 0
+
+
+def _cmd_topic(args: argparse.Namespace) -> int:
+    from depth_nodes.tools import introspect
+
+    with signals.graceful():
+        if args.verb == 'list':
+            for name, types in introspect.list_topics(wait=args.wait):
+                print(f'{name} [{", ".join(types)}]' if args.show_types else name)
+        elif args.verb == 'echo':
+            introspect.echo(args.topic, count=1 if args.once else args.count,
+                            timeout=args.timeout)
+        else:
+            introspect.measure(args.topic, args.verb, window=args.window,
+                               timeout=args.timeout)
+    return 0
+
+
+def _cmd_diag(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.introspect import diagnostics_view
+
+    clear = None
+    if sys.stdout.isatty() and not args.once:
+        def clear() -> None:
+            sys.stdout.write('\x1b[H\x1b[2J')
+    with signals.graceful():
+        diagnostics_view(period=args.period, once=args.once, timeout=args.timeout,
+                         clear=clear)
+    return 0
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.evaluate import evaluate_bag, has_ground_truth
+    from depth_nodes.tools.previews import bag_previews
+
+    if not has_ground_truth(args.bag):
+        if not args.previews:
+            raise BagError(f'{args.bag} has no ground truth (…/left/disparity_gt) to score '
+                           'against; --previews DIR draws its disparity, depth and '
+                           'confidence instead')
+        written = bag_previews(args.bag, args.previews, max_frames=args.preview_frames)
+        print(f'{args.bag}: no ground truth, nothing scored; {len(written)} previews '
+              f'written to {args.previews}')
+        return 0
     report = evaluate_bag(args.bag, threshold=args.threshold, baselines=not args.no_baseline,
-                          previews=args.previews)
+                          previews=args.previews, preview_frames=args.preview_frames)
     if not report.rows:
         raise BagError(f'nothing to score in {args.bag}: no disparity besides the ground '
                        'truth, and --no-baseline')
@@ -429,7 +485,15 @@ def build_parser() -> argparse.ArgumentParser:
     play = sub.add_parser('play', help='publish a bag into the live graph')
     play.add_argument('bag')
     play.add_argument('--rate', type=float, default=1.0, help='speed factor (default 1)')
-    play.add_argument('--loop', action='store_true', help='play again and again')
+    play.add_argument('--loop', action='store_true',
+                      help='play again and again; each repeat\'s header stamps move on by '
+                      'the bag\'s length plus one period, so nodes take it as a stream that '
+                      'goes on')
+    play.add_argument('--keep-stamps', action='store_true',
+                      help='--loop: publish every repeat with the recorded stamps (nodes '
+                      'start over on a jump back of 1 s or more, drop shorter ones)')
+    play.add_argument('--remap', nargs='+', metavar='FROM:=TO',
+                      help='publish topic FROM as TO (absolute names)')
     play.add_argument('--clock', action='store_true', help='publish /clock with bag time')
     play.add_argument('--topics', nargs='+', help='only these topics')
     play.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='SECONDS',
@@ -454,7 +518,9 @@ def build_parser() -> argparse.ArgumentParser:
     for verb, what in [('list', 'parameter names, sorted'), ('get', 'one value'),
                        ('set', 'change one value'), ('dump', 'all values as a params file')]:
         cmd = verbs.add_parser(verb, help=what)
-        cmd.add_argument('node', help='node name, e.g. /stereo/sgm_stereo')
+        cmd.add_argument('node', nargs='?' if verb == 'list' else None,
+                         help='node name, e.g. /stereo/sgm_stereo' + (
+                             ' (list: every node when left out)' if verb == 'list' else ''))
         if verb in ('get', 'set'):
             cmd.add_argument('name', help='parameter name')
         if verb == 'set':
@@ -463,10 +529,55 @@ def build_parser() -> argparse.ArgumentParser:
                          help='wait this long for the node (default 10)')
     par.set_defaults(func=_cmd_param)
 
+    nod = sub.add_parser('node', help='the nodes of the running graph (like ros2 node)')
+    nod_verbs = nod.add_subparsers(dest='verb', required=True)
+    nod_list = nod_verbs.add_parser('list', help='every node, sorted')
+    nod_list.add_argument('--wait', type=float, default=2.0, metavar='SECONDS',
+                          help='least discovery time before listing (default 2; it goes on '
+                          'while nodes are still announcing themselves, up to 10)')
+    nod.set_defaults(func=_cmd_node)
+
+    top = sub.add_parser('topic', help='the topics of the running graph (like ros2 topic)')
+    top_verbs = top.add_subparsers(dest='verb', required=True)
+    top_list = top_verbs.add_parser('list', help='every topic, sorted')
+    top_list.add_argument('-t', '--show-types', action='store_true',
+                          help='print each topic\'s type')
+    top_list.add_argument('--wait', type=float, default=2.0, metavar='SECONDS',
+                          help='least discovery time before listing (default 2; it goes on '
+                          'while nodes are still announcing themselves, up to 10)')
+    for verb, what in [('echo', 'print its messages (images and clouds as one summary '
+                                'line)'),
+                       ('hz', 'its rate every second'), ('bw', 'its bandwidth every second')]:
+        cmd = top_verbs.add_parser(verb, help=what)
+        cmd.add_argument('topic')
+        cmd.add_argument('--timeout', type=float, default=10.0, metavar='SECONDS',
+                         help='wait this long for the topic to appear (default 10)')
+        if verb == 'echo':
+            cmd.add_argument('--count', type=int, help='stop after N messages')
+            cmd.add_argument('--once', action='store_true', help='print one message and stop')
+        else:
+            cmd.add_argument('--window', type=int, default=100,
+                             help='messages the figures are taken over (default 100)')
+    top.set_defaults(func=_cmd_topic)
+
+    dia = sub.add_parser('diag', help='every node\'s diagnostics, refreshed: rate, '
+                         'processing time, drops by reason')
+    dia.add_argument('--period', type=float, default=2.0, metavar='SECONDS',
+                     help='refresh every SECONDS (default 2)')
+    dia.add_argument('--once', action='store_true', help='print one table and stop')
+    dia.add_argument('--timeout', type=float, default=10.0, metavar='SECONDS',
+                     help='--once: wait this long for the first diagnostics (default 10)')
+    dia.set_defaults(func=_cmd_diag)
+
     ev = sub.add_parser('eval', help='accuracy of a processed bag against its ground truth')
     ev.add_argument('bag')
     ev.add_argument('--threshold', type=float, default=2.0, help='N of bad-N (default 2)')
-    ev.add_argument('--previews', help='write PNG previews into this folder')
+    ev.add_argument('--previews', metavar='DIR',
+                    help='write PNG previews into DIR: every disparity, depth and confidence '
+                    'colour-mapped beside the left image, with a colour bar (also for a bag '
+                    'without ground truth, which is then only drawn)')
+    ev.add_argument('--preview-frames', type=int, default=10, metavar='N',
+                    help='previews of the first N frames (default 10)')
     ev.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
     ev.add_argument('--grid', action='store_true',
                     help='also print every setting of the 18-setting OpenCV grid')

@@ -44,11 +44,12 @@ from depth_nodes.core.metrics import (
     sparsification_auc,
 )
 from depth_nodes.core.rectify import rectify_image
-from depth_nodes.errors import BagError, ConfigError
+from depth_nodes.errors import BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array, to_gray
 from depth_nodes.tools.bagio import BagReader
+from depth_nodes.tools.previews import MapView, previews_folder, write_views
 
 DISPARITY = 'stereo_msgs/msg/DisparityImage'
 IMAGE = 'sensor_msgs/msg/Image'
@@ -254,12 +255,24 @@ class _Accumulator:
                             density_nonocc=visible.density, auc_ratio_own=auc_own)
 
 
+def has_ground_truth(path: str | Path) -> bool:
+    """True when the bag has a ``.../left/disparity_gt`` DisparityImage topic.
+
+    Raises:
+        BagError: The bag is missing or unreadable.
+    """
+    with BagReader(path) as reader:
+        return any(t.endswith(GT_SUFFIX) and kind == DISPARITY
+                   for t, kind in reader.topics.items())
+
+
 def evaluate_bag(
     path: str | Path,
     *,
     threshold: float = 2.0,
     baselines: bool = True,
     previews: str | Path | None = None,
+    preview_frames: int = 10,
 ) -> EvalReport:
     """Score every disparity in the bag at ``path`` against its ground truth.
 
@@ -268,7 +281,7 @@ def evaluate_bag(
         ConfigError: ``previews`` cannot be created.
     """
     if previews is not None:
-        _previews_folder(Path(previews))
+        previews_folder(Path(previews))
     with BagReader(path) as reader:
         gt_topics = sorted(t for t, ty in reader.topics.items()
                            if t.endswith(GT_SUFFIX) and ty == DISPARITY)
@@ -347,8 +360,11 @@ def evaluate_bag(
             for settings in SGBM_GRID:
                 est = opencv_sgbm(left, right, settings, disparity_range=drange)
                 grid_acc[settings.label].add(est, gt, nonocc)
-        if previews is not None:
-            _write_previews(Path(previews), stamp, frame_out, maps, threshold)
+        if previews is not None and len(gt_frames) and stamp in sorted(gt_frames)[
+                :preview_frames]:
+            rect = data.get(f'{ns}/left/image_rect', {}).get(stamp)
+            _write_previews(Path(previews), stamp, frame_out, maps, threshold,
+                            image_to_array(rect) if rect is not None else None)
     report.nonocc_fraction = visible_count / max(gt_count, 1)
     report.rows = [a.scores(m, threshold) for m, a in acc.items()]
     report.grid = [a.scores(m, threshold) for m, a in grid_acc.items()]
@@ -425,47 +441,22 @@ def _disparity_for(confidence_topic: str, estimates: list[str]) -> str | None:
     return None
 
 
-def _previews_folder(folder: Path) -> None:
-    """Create the previews folder now, so a bad path fails before the work, in one line."""
-    existing = next((a for a in (folder, *folder.parents) if a.exists()), None)
-    if existing is not None and not existing.is_dir():
-        raise ConfigError(f'cannot write previews to {folder}: {existing} is a file')
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f'cannot write previews to {folder}: {exc.strerror}') from None
-
-
-def _slug(name: str) -> str:
-    return ''.join(c if c.isalnum() else '_' for c in name).strip('_')
-
-
-def _colour(values: Array, top: float, colormap: int) -> Array:
-    """Map [0, top] through ``colormap``; non-finite pixels black."""
-    scaled = np.clip(np.nan_to_num(values) * (255.0 / max(top, 1e-6)), 0, 255).astype(np.uint8)
-    img = cv2.applyColorMap(scaled, colormap)
-    img[~np.isfinite(values)] = 0
-    return np.asarray(img)
-
-
 def _write_previews(folder: Path, stamp: int, frame: dict[str, Array], maps: dict[str, Array],
-                    threshold: float) -> None:
-    """PNGs of one frame, invalid pixels black: every disparity (TURBO over the ground-truth
-    range), its error (INFERNO, saturating at 2N px), depth (TURBO) and confidence (grey).
-    """
-    folder.mkdir(parents=True, exist_ok=True)
+                    threshold: float, image: Array | None) -> None:
+    """Composite PNGs of one frame (see ``tools.previews``): every disparity over the
+    ground-truth range, its error saturating at 2N px, the ground-truth depth and every
+    confidence, each beside the left image."""
     gt = frame['ground truth']
     top = float(np.nanmax(gt))
+    views = []
     for name, disp in frame.items():
-        cv2.imwrite(str(folder / f'{stamp}_{_slug(name)}_disparity.png'),
-                    _colour(disp, top, cv2.COLORMAP_TURBO))
+        views.append(MapView(name, disp, 0.0, top, kind='disparity'))
         if name != 'ground truth':
-            cv2.imwrite(str(folder / f'{stamp}_{_slug(name)}_error.png'),
-                        _colour(np.abs(disp - gt), 2 * threshold, cv2.COLORMAP_INFERNO))
+            views.append(MapView(name, np.abs(disp - gt), 0.0, 2 * threshold,
+                                 cv2.COLORMAP_INFERNO, kind='error'))
     for name, values in maps.items():
         if name == 'depth_gt':
-            img = _colour(values, float(np.nanmax(values)), cv2.COLORMAP_TURBO)
-            cv2.imwrite(str(folder / f'{stamp}_depth_gt.png'), img)
+            views.append(MapView('depth_gt', values, 0.0, float(np.nanmax(values)), unit='m'))
         else:
-            grey = np.clip(np.nan_to_num(values) * 255.0, 0, 255).astype(np.uint8)
-            cv2.imwrite(str(folder / f'{stamp}_{_slug(name)}.png'), grey)
+            views.append(MapView(name, values, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit=''))
+    write_views(folder, stamp, image, views)

@@ -1,11 +1,18 @@
 """`depth-nodes play` and `depth-nodes record`: bags into and out of a live ROS graph.
 
 ``ros2 bag`` is not on PyPI. These publish and record the serialised CDR bytes untouched,
-so a recorded message is byte-for-byte the one that was played.
+so a recorded message is byte-for-byte the one that was played (but for ``play --loop``'s
+repeats, whose header stamps move on; see :class:`PlayOptions`).
+
+QoS as rosbag2: ``record`` stores the QoS profiles each topic's publishers offered in the
+bag's metadata, and ``play`` offers them again: a transient-local topic such as
+``/tf_static`` stays transient-local (a node that starts later still gets it), a topic
+recorded best effort is played best effort; others are reliable.
 """
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from collections.abc import Iterable
@@ -59,6 +66,11 @@ class PlayOptions:
             nothing, and a message still on its way to it when its publisher is destroyed
             is lost: the campaign test lost its last frame that way, at a different node
             each time.
+        restamp: With ``loop``, move the header stamps of every repeat on by the bag's
+            length plus one message period, so the repeats read as a stream that goes on
+            (the nodes drop a stamp that is not newer than the last: a 0.1 s bag looped
+            as it is gave two frames, then only drops). False keeps the recorded stamps.
+        remap: Publish topic ``FROM`` as ``TO`` (``--remap FROM:=TO``).
     """
 
     rate: float = 1.0
@@ -68,6 +80,8 @@ class PlayOptions:
     wait_for_subscribers: float = 0.0
     delay: float = 0.0
     linger: float = 1.0
+    restamp: bool = True
+    remap: dict[str, str] | None = None
 
     def validate(self) -> None:
         """Raises ConfigError for a non-positive rate or a negative wait, delay or linger."""
@@ -80,6 +94,9 @@ class PlayOptions:
         if self.wait_for_subscribers < 0:
             raise ConfigError(f'--wait-for-subscribers must be >= 0, got '
                               f'{self.wait_for_subscribers}')
+        for source, target in (self.remap or {}).items():
+            if not source.startswith('/') or not target.startswith('/'):
+                raise ConfigError(f'--remap {source}:={target}: both names must be absolute')
 
 
 def play_bag(path: str | Path, options: PlayOptions | None = None,
@@ -99,12 +116,18 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
     topics = options.topics or sorted(reader.topics)
     for topic in topics:
         reader.require(topic)
+    remap = options.remap or {}
+    for source in remap:
+        if source not in topics:
+            reader.close()
+            raise BagError(f'--remap {source}: no such topic played from {path}')
     # Stopping is ours (tools/signals.py): rclpy's handler would shut the context down
     # under a publish() in progress ("rcl_shutdown already called").
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = Node('depth_nodes_player')
     try:
-        pubs = {t: node.create_publisher(message_class(reader.topics[t]), t, _reliable())
+        pubs = {t: node.create_publisher(message_class(reader.topics[t]), remap.get(t, t),
+                                         _offered(reader.qos.get(t, [])))
                 for t in topics}
         clock_pub = None
         if options.clock:
@@ -112,16 +135,23 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
 
             clock_pub = node.create_publisher(Clock, '/clock', _reliable())
         waited = {**pubs, '/clock': clock_pub} if clock_pub is not None else pubs
-        _wait_for_subscribers(waited, options.wait_for_subscribers)
+        _wait_for_subscribers(waited, options.wait_for_subscribers, log)
         STOP.wait(options.delay)
         if log:
-            log.write(f'playing {reader.message_count} messages on {len(topics)} topics\n')
+            count = sum(reader.counts[t] for t in topics)
+            log.write(f'playing {count} messages on {len(topics)} topics'
+                      f'{", again and again" if options.loop else ""}\n')
             log.flush()
         published = 0
+        shift = 0
+        step, period = _loop_step(reader, topics) if options.loop else (0, 0)
         while not stop_requested():
-            published += _play_once(reader, topics, pubs, clock_pub, options.rate)
+            published += _play_once(reader, topics, pubs, clock_pub, options.rate, shift)
             if not options.loop:
                 break
+            STOP.wait(period / 1e9 / options.rate)  # the next repeat a period later
+            if options.restamp:
+                shift += step
         if stop_requested():
             if log:
                 log.write(f'interrupted after {published} messages\n')
@@ -136,16 +166,83 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
         reader.close()
 
 
-def _wait_for_subscribers(pubs: dict[str, Any], timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not stop_requested():
-        if all(p.get_subscription_count() > 0 for p in pubs.values()):
+def _offered(profiles: list[Any]) -> QoSProfile:
+    """The QoS to play a topic with, from the profiles its publishers offered when it was
+    recorded (rosbag2's rule): transient local when every one was, best effort when any
+    was, else reliable and volatile."""
+    qos = _reliable()
+    if not profiles:
+        return qos
+    if all(p.durability.name == 'TRANSIENT_LOCAL' for p in profiles):
+        qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
+        qos.depth = max(1, max(p.depth for p in profiles))
+    if any(p.reliability.name == 'BEST_EFFORT' for p in profiles):
+        qos.reliability = ReliabilityPolicy.BEST_EFFORT
+    return qos
+
+
+def _loop_step(reader: BagReader, topics: list[str]) -> tuple[int, int]:
+    """Nanoseconds to move the stamps on per repeat (the bag's length plus one period),
+    and that period: the median one of the busiest topic (0.1 s for a single message)."""
+    times: dict[str, list[int]] = {}
+    for bag_msg in reader.messages(topics):
+        times.setdefault(bag_msg.topic, []).append(bag_msg.timestamp)
+    first = min(t[0] for t in times.values())
+    last = max(t[-1] for t in times.values())
+    busiest = max(times.values(), key=len)
+    gaps = sorted(b - a for a, b in itertools.pairwise(busiest) if b > a)
+    period = gaps[len(gaps) // 2] if gaps else 100_000_000
+    return last - first + period, period
+
+
+def _restamped(data: bytes, msgtype: str, shift: int) -> bytes:
+    """The message with every std_msgs/Header stamp in it moved on by ``shift`` ns."""
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    msg = deserialize_message(data, message_class(msgtype))
+    if not _shift_stamps(msg, shift):
+        return data
+    return bytes(serialize_message(msg))
+
+
+def _shift_stamps(msg: Any, shift: int) -> bool:
+    """Move every Header stamp inside ``msg`` (nested and in arrays) on; False when none."""
+    found = False
+    for name, kind in msg.get_fields_and_field_types().items():
+        value = getattr(msg, name)
+        if kind == 'std_msgs/Header':
+            total = value.stamp.sec * 1_000_000_000 + value.stamp.nanosec + shift
+            value.stamp.sec, value.stamp.nanosec = divmod(total, 1_000_000_000)
+            found = True
+        elif hasattr(value, 'get_fields_and_field_types'):
+            found |= _shift_stamps(value, shift)
+        elif kind.startswith('sequence<') and '/' in kind:
+            for item in value:
+                found |= _shift_stamps(item, shift)
+    return found
+
+
+def _wait_for_subscribers(pubs: dict[str, Any], timeout: float,
+                          log: TextIO | None = None) -> None:
+    """Wait up to ``timeout`` s for every topic to have a subscriber, saying every second
+    which ones are still without."""
+    start = time.monotonic()
+    said = start
+    while time.monotonic() - start < timeout and not stop_requested():
+        missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+        if not missing:
             return
+        if log is not None and time.monotonic() - said >= 1.0:
+            said = time.monotonic()
+            log.write(f'waiting for subscribers ({said - start:.0f} of {timeout:g} s): '
+                      f'{len(pubs) - len(missing)} of {len(pubs)} topics have one; none on '
+                      f'{", ".join(missing[:4])}{" ..." if len(missing) > 4 else ""}\n')
+            log.flush()
         STOP.wait(0.02)
 
 
 def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
-               clock_pub: Any, rate: float) -> int:
+               clock_pub: Any, rate: float, shift: int = 0) -> int:
     start_wall = time.monotonic()
     start_bag: int | None = None
     count = 0
@@ -159,18 +256,44 @@ def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
             from rosgraph_msgs.msg import Clock
 
             clock = Clock()
-            clock.clock.sec, clock.clock.nanosec = divmod(bag_msg.timestamp, 1_000_000_000)
+            clock.clock.sec, clock.clock.nanosec = divmod(bag_msg.timestamp + shift,
+                                                          1_000_000_000)
             clock_pub.publish(clock)
-        pubs[bag_msg.topic].publish(bag_msg.data)
+        data = _restamped(bag_msg.data, bag_msg.msgtype, shift) if shift else bag_msg.data
+        pubs[bag_msg.topic].publish(data)
         count += 1
     return count
+
+
+def _to_bag_qos(profile: QoSProfile) -> Any:
+    """An rclpy QoS profile as rosbags' Qos tuple (what rosbag2 writes to metadata)."""
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+
+    def when(duration: Any) -> Any:
+        sec, nsec = divmod(int(duration.nanoseconds), 1_000_000_000)
+        return QosTime(min(sec, 2 ** 31 - 1), nsec)
+
+    return Qos(QosHistory(int(profile.history)), int(profile.depth),
+               QosReliability(int(profile.reliability)),
+               QosDurability(int(profile.durability)), when(profile.deadline),
+               when(profile.lifespan), QosLiveliness(int(profile.liveliness)),
+               when(profile.liveliness_lease_duration),
+               bool(profile.avoid_ros_namespace_conventions))
 
 
 class Recorder:
     """Subscribe to ``topics`` as they appear and write every message's bytes to a bag.
 
     A subscription is reliable when every publisher of the topic is, best effort
-    otherwise (as rosbag2 does), so it matches any publisher.
+    otherwise, and transient local when every publisher is (as rosbag2 does), so it
+    matches any publisher and gets a latched message published before it started.
     """
 
     def __init__(self, path: str | Path, topics: Iterable[str], *, overwrite: bool = False) -> None:
@@ -200,15 +323,20 @@ class Recorder:
             if not infos or any(i.qos_profile.reliability != ReliabilityPolicy.RELIABLE
                                 for i in infos):
                 qos.reliability = ReliabilityPolicy.BEST_EFFORT
+            if infos and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                             for i in infos):  # latched (/tf_static): get what came before
+                qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
             self._subs[topic] = self.node.create_subscription(
-                message_class(msgtype), topic, self._callback(topic, msgtype), qos, raw=True)
+                message_class(msgtype), topic,
+                self._callback(topic, msgtype, [_to_bag_qos(i.qos_profile) for i in infos]),
+                qos, raw=True)
         return [t for t in self.topics if t not in self._subs]
 
-    def _callback(self, topic: str, msgtype: str) -> Any:
+    def _callback(self, topic: str, msgtype: str, offered: list[Any]) -> Any:
         def on_message(data: bytes) -> None:
             stamp = self.node.get_clock().now().nanoseconds
             with self._lock:
-                self.writer.write(topic, data, stamp, msgtype)
+                self.writer.write(topic, data, stamp, msgtype, qos=offered)
                 self.count += 1
         return on_message
 

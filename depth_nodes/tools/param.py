@@ -8,6 +8,7 @@ come from the environment, as for any ROS 2 tool.
 
 from __future__ import annotations
 
+import difflib
 import os
 import time
 from collections.abc import Iterator, Mapping
@@ -181,22 +182,33 @@ class ParameterClient:
                          for verb, srv in _SERVICES.items()}
 
     def wait(self, verbs: tuple[str, ...]) -> None:
-        """Wait up to the timeout for the services of ``verbs``.
+        """Wait up to the timeout for the services of ``verbs``; give up sooner when the
+        graph's node list has settled (see ``introspect.settle``) without the node.
 
         Raises:
             ConfigError: They did not appear; names the nodes that are visible.
         """
-        deadline = time.monotonic() + self._timeout
+        from depth_nodes.tools.introspect import DISCOVERY_S, STABLE_S, visible_nodes
+
+        start = time.monotonic()
+        deadline = start + self._timeout
+        seen, stable_since = visible_nodes(self._node), start
         while not all(self._clients[v].service_is_ready() for v in verbs):
-            if time.monotonic() >= deadline:
-                visible = sorted({
-                    f'{ns.rstrip("/")}/{name}'
-                    for name, ns in self._node.get_node_names_and_namespaces()
-                    if not name.startswith('_')})
-                seen = f'; visible nodes: {", ".join(visible)}' if visible else ''
-                raise ConfigError(f'node {self.target} not found (its parameter services did '
-                                  f'not appear within {self._timeout:g} s){seen}')
-            time.sleep(0.05)
+            now = time.monotonic()
+            visible = visible_nodes(self._node)
+            if visible != seen:
+                seen, stable_since = visible, now
+            settled = (now - start >= DISCOVERY_S and now - stable_since >= STABLE_S
+                       and visible and self.target not in visible)
+            if now >= deadline or settled:
+                shown = f'; visible nodes: {", ".join(visible)}' if visible else ''
+                close = difflib.get_close_matches(self.target, visible, n=1)
+                if close:
+                    shown = f'; did you mean {close[0]}?{shown}'
+                why = ('not in the graph' if settled else
+                       f'its parameter services did not appear within {self._timeout:g} s')
+                raise ConfigError(f'node {self.target} not found ({why}){shown}')
+            self._executor.spin_once(timeout_sec=0.05)
 
     def call(self, verb: str, request: Any) -> Any:
         """Send ``request`` to the ``verb`` service and return the response.
@@ -306,3 +318,19 @@ def dump_parameters(node: str, *, timeout: float = DEFAULT_TIMEOUT) -> str:
         python = {n: to_python(v) for n, v in zip(names, values, strict=True)
                   if v.type != ParameterType.PARAMETER_NOT_SET}
         return dump_yaml(client.target, python)
+
+
+def list_all_parameters(*, timeout: float = DEFAULT_TIMEOUT) -> dict[str, list[str]]:
+    """Every visible node's parameter names (``ros2 param list`` without a node)."""
+    from depth_nodes.tools.introspect import DISCOVERY_S, graph_node, settle, visible_nodes
+
+    with graph_node('param_list') as (node, executor):
+        settle(node, executor, DISCOVERY_S)
+        names = visible_nodes(node)
+    out: dict[str, list[str]] = {}
+    for name in names:
+        try:
+            out[name] = list_parameters(name, timeout=timeout)
+        except ConfigError:  # a node without parameter services, or gone meanwhile
+            continue
+    return out

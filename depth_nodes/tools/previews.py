@@ -1,0 +1,214 @@
+"""PNG pictures of a bag's outputs: every map colour-mapped, with a colour bar that says
+what the colours mean, beside the camera image it was computed from.
+
+`depth-nodes eval --previews DIR` writes them for any bag: scored against the ground truth
+when the bag has one (the error maps too), or, for a user's own recording, just the
+disparities, depth images and confidence maps it holds. One PNG per map and frame:
+``<stamp>_<topic>.png``, the left image on the left, the map in the middle, its colour bar
+on the right; pixels without a value are black.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from depth_nodes.errors import BagError, ConfigError, DepthNodesError
+from depth_nodes.ros.disparity import read_disparity
+from depth_nodes.ros.transport import image_pixels
+from depth_nodes.tools.bagio import BagReader
+
+Array = NDArray[Any]
+DISPARITY = 'stereo_msgs/msg/DisparityImage'
+IMAGE = 'sensor_msgs/msg/Image'
+COMPRESSED = 'sensor_msgs/msg/CompressedImage'
+#: Width of the colour bar, px.
+BAR_WIDTH = 70
+
+
+@dataclass(frozen=True)
+class MapView:
+    """One map to draw: values, the range the colours span, the colour map, the unit."""
+
+    name: str
+    values: Array
+    low: float
+    high: float
+    colormap: int = cv2.COLORMAP_TURBO
+    unit: str = 'px'
+    #: What the map is (disparity, depth, error, ...), shown after the name.
+    kind: str = ''
+
+
+def colour(values: Array, low: float, high: float, colormap: int) -> Array:
+    """``values`` in [low, high] through ``colormap``; non-finite pixels black."""
+    span = max(high - low, 1e-9)
+    finite = np.isfinite(values)
+    scaled = np.clip((np.where(finite, values, low) - low) * (255.0 / span), 0, 255)
+    img = cv2.applyColorMap(scaled.astype(np.uint8), colormap)
+    img[~finite] = 0
+    return np.asarray(img)
+
+
+def colour_bar(height: int, view: MapView) -> Array:
+    """A vertical bar of ``view``'s colours, high at the top, with five labelled ticks."""
+    ramp = np.linspace(view.high, view.low, max(height, 2), dtype=np.float64)[:, None]
+    bar = colour(np.repeat(ramp, 14, axis=1), view.low, view.high, view.colormap)
+    out = np.full((height, BAR_WIDTH, 3), 255, np.uint8)
+    out[:, 4:18] = bar
+    for k in range(5):
+        y = round(k * (height - 1) / 4)
+        value = view.high - k * (view.high - view.low) / 4
+        out[y, 18:24] = 0
+        text = f'{value:.3g}'
+        cv2.putText(out, text, (25, min(max(y + 4, 10), height - 3)),
+                    cv2.FONT_HERSHEY_PLAIN, 0.8, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(out, view.unit, (25, height // 2 + 20 if height > 60 else height - 3),
+                cv2.FONT_HERSHEY_PLAIN, 0.8, (0, 0, 0), 1, cv2.LINE_AA)
+    return out
+
+
+def _bgr(image: Array | None, shape: tuple[int, int]) -> Array:
+    """The camera image as 8-bit BGR of the map's size (grey when there is none)."""
+    if image is None:
+        return np.full((*shape, 3), 128, np.uint8)
+    img = image
+    if img.dtype != np.uint8:
+        img = (img.astype(np.float64) / max(float(np.nanmax(img)), 1.0) * 255).astype(np.uint8)
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    if img.shape[:2] != shape:
+        img = cv2.resize(img, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    return np.asarray(img)
+
+
+def composite(image: Array | None, view: MapView) -> Array:
+    """The camera image, the colour-mapped map and its colour bar side by side, with the
+    map's name above."""
+    h, w = view.values.shape[:2]
+    body = np.hstack([_bgr(image, (h, w)), colour(view.values, view.low, view.high,
+                                                  view.colormap), colour_bar(h, view)])
+    title = np.full((22, body.shape[1], 3), 255, np.uint8)
+    text = f'{view.name} ({view.kind})' if view.kind else view.name
+    cv2.putText(title, text, (4, 16), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.vstack([title, body])
+
+
+def slug(name: str) -> str:
+    """A file-name-safe form of a topic or method name."""
+    return ''.join(c if c.isalnum() else '_' for c in name).strip('_')
+
+
+def write_views(folder: Path, stamp: int, image: Array | None,
+                views: Iterable[MapView]) -> list[Path]:
+    """One composite PNG per view (see the module notes); returns the files."""
+    written = []
+    for view in views:
+        path = folder / f'{stamp}_{slug(view.name)}{"_" + view.kind if view.kind else ""}.png'
+        if not cv2.imwrite(str(path), composite(image, view)):
+            raise ConfigError(f'cannot write {path}')
+        written.append(path)
+    return written
+
+
+def previews_folder(folder: Path) -> None:
+    """Create the previews folder now, so a bad path fails before the work, in one line."""
+    existing = next((a for a in (folder, *folder.parents) if a.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ConfigError(f'cannot write previews to {folder}: {existing} is a file')
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f'cannot write previews to {folder}: {exc.strerror}') from None
+
+
+def _robust_range(values: Array) -> tuple[float, float]:
+    finite = values[np.isfinite(values)]
+    if not finite.size:
+        return 0.0, 1.0
+    low, high = np.percentile(finite, [1, 99])
+    return float(low), float(high) if high > low else float(low) + 1.0
+
+
+def _views_of(topic: str, msg: Any) -> MapView | None:
+    """The view of one output message, or None for an image that is not a map."""
+    if type(msg).__name__ == 'DisparityImage':
+        disparity = read_disparity(msg).disparity
+        low, high = _robust_range(disparity)
+        return MapView(topic, disparity, low, high, kind='disparity')
+    pixels, encoding = image_pixels(msg)
+    if topic.endswith('/confidence') and encoding == '32FC1':
+        return MapView(topic, pixels, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit='')
+    if topic.endswith(('/depth', '/depth_gt')) and encoding in ('32FC1', '16UC1'):
+        metres = pixels.astype(np.float32) / 1000.0 if encoding == '16UC1' else pixels
+        metres = np.where(metres > 0, metres, np.nan) if encoding == '16UC1' else metres
+        finite = metres[np.isfinite(metres)]
+        high = float(np.percentile(finite, 99)) if finite.size else 1.0
+        return MapView(topic, metres, 0.0, max(high, 1e-3), unit='m', kind='depth')
+    return None
+
+
+def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
+                 ) -> list[Path]:
+    """Previews of the first ``max_frames`` stamps of every map in a bag (disparities,
+    depth images, confidence maps), each beside the left image of its namespace.
+
+    Raises:
+        BagError: Unreadable bag, or no map in it.
+        ConfigError: The folder cannot be written, or ``max_frames`` < 1.
+    """
+    if max_frames < 1:
+        raise ConfigError(f'--preview-frames must be at least 1, got {max_frames}')
+    out = Path(folder)
+    previews_folder(out)
+    with BagReader(path) as reader:
+        maps = sorted(t for t, kind in reader.topics.items() if kind == DISPARITY or (
+            kind == IMAGE and t.endswith(('/depth', '/confidence', '/depth_gt'))))
+        if not maps:
+            raise BagError(f'{path} holds no disparity, depth or confidence topic to draw')
+        images = {t for t, kind in reader.topics.items() if kind in (IMAGE, COMPRESSED)
+                  and t.endswith(('/left/image_rect', '/left/image_rect_color',
+                                  '/left/image_raw', '/left/image_raw/compressed'))}
+        frames: dict[int, dict[str, Any]] = {}
+        for bag_msg in reader.messages([*maps, *images]):
+            msg = bag_msg.deserialize()
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            if stamp not in frames and len(frames) >= max_frames:
+                continue
+            frames.setdefault(stamp, {})[bag_msg.topic] = msg
+    written: list[Path] = []
+    for stamp, frame in sorted(frames.items()):
+        for topic in maps:
+            if topic not in frame:
+                continue
+            try:
+                view = _views_of(topic, frame[topic])
+            except DepthNodesError:
+                continue  # a damaged message: nothing to draw
+            if view is None:
+                continue
+            written += write_views(out, stamp, _left_image(frame, topic), [view])
+    return written
+
+
+def _left_image(frame: dict[str, Any], topic: str) -> Array | None:
+    """The left camera image of ``topic``'s namespace in this frame, if the bag has one."""
+    ns = topic.rsplit('/', 1)[0]
+    for suffix in ('left/image_rect_color', 'left/image_rect', 'left/image_raw',
+                   'left/image_raw/compressed'):
+        msg = frame.get(f'{ns}/{suffix}')
+        if msg is not None:
+            try:
+                pixels, encoding = image_pixels(msg)
+            except DepthNodesError:
+                return None
+            return cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR) if encoding == 'rgb8' else pixels
+    return None
