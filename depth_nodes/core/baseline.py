@@ -7,6 +7,7 @@ rectified images in the same run.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -159,7 +160,7 @@ def opencv_sgbm(
     return _to_pixels(matcher.compute(left, right), min_disparity)
 
 
-def _to_pixels(raw: NDArray[np.int16], min_disparity: int) -> NDArray[np.float32]:
+def _to_pixels(raw: NDArray[Any], min_disparity: int) -> NDArray[np.float32]:
     """OpenCV's 1/16 px fixed point to float px, NaN where it marks a pixel invalid."""
     disparity = raw.astype(np.float32) / 16.0
     disparity[raw < min_disparity * 16] = np.nan
