@@ -19,6 +19,7 @@ NODE_SCRIPTS = [
     'cross_check = depth_nodes.nodes.cross_check:main',
     'point_cloud = depth_nodes.nodes.point_cloud:main',
     'structured_light = depth_nodes.nodes.structured_light:main',
+    'static_transform = depth_nodes.nodes.static_transform:main',
 ]
 
 ROS_WHEELS = [

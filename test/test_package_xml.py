@@ -13,10 +13,12 @@ from conftest import REPO
 #: ROS packages released for Jazzy, so rosdep resolves them by name. Checked in
 #: ros/rosdistro jazzy/distribution.yaml (repositories rclpy; rcl_interfaces, which
 #: releases rcl_interfaces and rosgraph_msgs; common_interfaces, which releases
-#: sensor_msgs, stereo_msgs, std_msgs and diagnostic_msgs; ament_index; launch; launch_ros).
+#: sensor_msgs, stereo_msgs, std_msgs, diagnostic_msgs and geometry_msgs; geometry2, which
+#: releases tf2_msgs; ament_index; launch; launch_ros).
 JAZZY_ROS_PACKAGES = frozenset({
     'rclpy', 'rcl_interfaces', 'rosgraph_msgs', 'sensor_msgs', 'stereo_msgs', 'std_msgs',
-    'diagnostic_msgs', 'ament_index_python', 'launch', 'launch_ros',
+    'diagnostic_msgs', 'geometry_msgs', 'tf2_msgs', 'ament_index_python', 'launch',
+    'launch_ros',
 })
 
 #: Keys of ros/rosdistro rosdep/python.yaml that resolve on Ubuntu Noble (Jazzy's platform).

@@ -272,3 +272,22 @@ def test_an_unknown_image_transport_is_refused_at_start_up(context: Context) -> 
                                           r'raw, compressed, compressedDepth'):
         RectifyNode(context=context,
                     parameter_overrides=[Parameter('image_transport', value='theora')])
+
+
+def test_frame_id_override_leaves_the_input_alone(context: Context) -> None:
+    """`frame_id` renames the outputs' frame (a driver's frame names that do not fit the
+    robot's TF tree); the input message keeps its own."""
+    node = RectifyNode(context=context,
+                       parameter_overrides=[Parameter('frame_id', value='cam_optical')])
+    outbox: list[Any] = []
+    node.sink = lambda topic, msg: outbox.append(msg)
+    try:
+        image, info = _pair()
+        image.header.frame_id = 'driver_frame'
+        image.header.stamp.sec = 12
+        node.on_frame(image, info)
+        assert [m.header.frame_id for m in outbox] == ['cam_optical', 'cam_optical']
+        assert all(m.header.stamp.sec == 12 for m in outbox)
+        assert image.header.frame_id == 'driver_frame'
+    finally:
+        node.destroy_node()

@@ -37,6 +37,7 @@ NODE_PLUGINS: dict[str, str] = {
     'cross_check': 'depth_nodes.nodes.cross_check:CrossCheckNode',
     'point_cloud': 'depth_nodes.nodes.point_cloud:PointCloudNode',
     'structured_light': 'depth_nodes.nodes.structured_light:StructuredLightNode',
+    'static_transform': 'depth_nodes.nodes.static_transform:StaticTransformNode',
 }
 
 

@@ -17,7 +17,9 @@ on the first three):
   as ``stamp_out_of_order``, unless the stamps jumped back by :data:`STAMP_RESET_S` or
   more, as when a bag loops, which starts the topic over);
 * every ``diagnostics_period`` seconds the node publishes a diagnostic_msgs/DiagnosticArray
-  on ``/diagnostics``: input and output rates, processing time per frame, drops by reason.
+  on ``/diagnostics``: input and output rates, processing time per frame, drops by reason;
+* ``frame_id`` (empty by default) replaces the frame of every output's header, for a
+  driver whose frame names do not fit the robot's TF tree.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Image
+from std_msgs.msg import Header
 
 from depth_nodes.core.camera import StereoModel
 from depth_nodes.errors import (
@@ -97,6 +100,13 @@ class _Window:
     frame_times: list[float] = field(default_factory=list)
 
 
+def _set_frame(msg: Any, frame: str) -> None:
+    for holder in (msg, getattr(msg, 'image', None)):
+        header = getattr(holder, 'header', None)
+        if header is not None:
+            holder.header = Header(stamp=header.stamp, frame_id=frame)
+
+
 class Output:
     """A publisher that the offline harness can redirect.
 
@@ -111,7 +121,12 @@ class Output:
         self.count = 0
 
     def publish(self, msg: Any) -> None:
-        """Publish ``msg`` (or hand it to the harness sink); callable from any thread."""
+        """Publish ``msg`` (or hand it to the harness sink); callable from any thread. With
+        the node's ``frame_id`` parameter set, the message's header (and a DisparityImage's
+        image header) get that frame, on a copy: the input's header is left alone."""
+        frame = self._node.frame_override
+        if frame:
+            _set_frame(msg, frame)
         with self._node._counting:
             self.count += 1
             self._node._window.outputs[self.topic] += 1
@@ -166,6 +181,10 @@ class DepthNode(Node):
                 read_only=True,
                 floating_point_range=[FloatingPointRange(from_value=0.0, to_value=3600.0,
                                                          step=0.0)])).value
+        self.frame_override: str = self.declare_parameter(
+            'frame_id', '', ParameterDescriptor(
+                description='Frame of every output\'s header (empty: the input\'s frame, '
+                            'as the camera driver set it)', read_only=True)).value
         self._diagnostics_pub = None
         if period > 0:
             self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
