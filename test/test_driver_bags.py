@@ -163,3 +163,43 @@ def test_compressed_messages_in_the_output_bag_are_readable(tmp_path: Path) -> N
             ['/camera/left/image_raw/compressed']))
     assert isinstance(msg, CompressedImage)
     assert msg.format == 'bayer_gbrg8; jpeg compressed bayer_gbrg8'
+
+
+@pytest.mark.ros
+def test_the_live_pipeline_takes_a_driver_bag_with_one_option(tmp_path: Path) -> None:
+    """`depth-nodes pipeline --namespace /camera --image-transport compressed`, fed by
+    `play` of a JPEG bag under /camera: the disparity comes out under /camera."""
+    import signal
+    import subprocess
+    import sys
+
+    from conftest import graph_env
+
+    bag = _driver_bag(tmp_path, 'stereo_vga', codec='jpeg')
+    env = graph_env()
+    pipeline = subprocess.Popen(
+        [sys.executable, '-m', 'depth_nodes.tools.cli', 'pipeline', '--namespace', '/camera',
+         '--image-transport', 'compressed'], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, env=env, cwd=REPO)
+    try:
+        echo = subprocess.Popen(
+            [sys.executable, '-m', 'depth_nodes.tools.cli', 'topic', 'echo',
+             '/camera/disparity', '--count', '2', '--timeout', '120'],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+        player = subprocess.Popen(
+            [sys.executable, '-m', 'depth_nodes.tools.cli', 'play', str(bag), '--loop',
+             '--wait-for-subscribers', '120', '--delay', '1'],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+        out, err = echo.communicate(timeout=300)
+        player.send_signal(signal.SIGINT)
+        player.communicate(timeout=30)
+        assert echo.returncode == 0, err
+        lines = [line for line in out.splitlines() if line.startswith('DisparityImage')]
+        assert len(lines) == 2, out
+        assert all('640x480' in line and "frame 'left_camera_optical_frame'" in line
+                   for line in lines)
+    finally:
+        pipeline.send_signal(signal.SIGINT)
+        pipe_out, pipe_err = pipeline.communicate(timeout=60)
+    assert pipeline.returncode == 0, pipe_err
+    assert 'pipeline stereo: 5 nodes up (/camera/left/rectify_left' in pipe_out
