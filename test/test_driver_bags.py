@@ -119,6 +119,19 @@ def test_side_and_image_names_follow_a_driver(context: Context) -> None:
     assert '/cam/infra1/image_rect' in topics['/cam/point_cloud']  # its own remap followed
 
 
+def test_a_parameter_file_for_the_graphs_own_names_follows_the_rename() -> None:
+    """config/disparity_64.yaml addresses /stereo/sgm_stereo: with --namespace /camera it
+    still reaches the moved node (a run that silently kept 128 disparities otherwise)."""
+    from depth_nodes.ros.graph import load_params_file, parameters_for, unmatched_entries
+
+    config = rename_cameras(STEREO, namespace='/camera')
+    params = load_params_file(REPO / 'config' / 'disparity_64.yaml')
+    sgm = next(n for n in config.nodes if n.name == 'sgm_stereo')
+    assert sgm.fully_qualified_name == '/camera/sgm_stereo'
+    assert parameters_for(sgm, params)['disparity_range'] == 64
+    assert unmatched_entries(config, params) == []
+
+
 def test_bad_camera_names_are_refused() -> None:
     from depth_nodes.errors import ConfigError
 

@@ -159,7 +159,9 @@ def rename_cameras(config: GraphConfig, *, namespace: str | None = None,
 
     Nodes move with their namespace; a node at the root keeps its relative topic names
     (``left/image_rect``) and gets remappings to the new side names; a remapping that
-    pointed at a renamed topic points at its new name.
+    pointed at a renamed topic points at its new name. A moved node keeps its old full
+    name as an alias, so a parameter file written for the graph's own names (e.g.
+    ``/stereo/sgm_stereo``) still reaches it.
 
     Raises:
         ConfigError: A name that is empty, relative where it must be absolute, or has
@@ -201,8 +203,12 @@ def rename_cameras(config: GraphConfig, *, namespace: str | None = None,
                     remaps.setdefault(f'{side}/{topic}', f'{new}/{topic}')
         if new_image is not None and not in_root:
             remaps.setdefault('image_raw', new_image)
-        nodes.append(NodeSpec(spec.name, spec.plugin, move(spec.namespace) or '/',
-                              dict(spec.parameters), remaps, list(spec.aliases)))
+        namespace = move(spec.namespace) or '/'
+        aliases = list(spec.aliases)
+        if namespace != spec.namespace:  # a parameter file written for the graph's names
+            aliases.append(spec.fully_qualified_name)
+        nodes.append(NodeSpec(spec.name, spec.plugin, namespace, dict(spec.parameters),
+                              remaps, aliases))
     return GraphConfig(config.name, nodes, config.source)
 
 
@@ -262,6 +268,9 @@ def node_keys(spec: NodeSpec) -> list[str]:
     fq = spec.fully_qualified_name
     keys: list[str] = []
     for name in (*spec.aliases, spec.name):
+        if name.startswith('/'):  # a full name: the node's before rename_cameras moved it
+            keys += [name.lstrip('/'), name]
+            continue
         full = f'{spec.namespace.rstrip("/")}/{name}'
         keys += [name, full.lstrip('/'), full]
     return [k for i, k in enumerate(keys) if k not in keys[:i]] + (

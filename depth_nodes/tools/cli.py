@@ -99,6 +99,7 @@ def _cmd_process(args: argparse.Namespace) -> int:
 
     config = _renamed(load_graph_config(args.config or default_config_path()), args)
     config = select_nodes(config, args.nodes)
+    _warn_unmatched(config, args.params)
     with signals.graceful():
         report = process_bag(args.in_bag, args.out_bag, config=config,
                              params_file=args.params, overwrite=args.force,
@@ -111,6 +112,17 @@ def _cmd_process(args: argparse.Namespace) -> int:
     elif not report.published:
         raise BagError(f'{report.nothing_published()}; {args.out_bag} was removed')
     return 0
+
+
+def _warn_unmatched(config: GraphConfig, params_file: str | None) -> None:
+    """Say at once which entries of the parameter file address no node of the graph."""
+    from depth_nodes.ros.graph import load_params_file, unmatched_entries
+
+    if params_file:
+        for key in unmatched_entries(config, load_params_file(params_file)):
+            print(f'depth-nodes: warning: parameter file entry {key!r} matches no node of '
+                  f'the graph ({", ".join(n.fully_qualified_name for n in config.nodes)}); '
+                  'it is ignored', file=sys.stderr)
 
 
 def _renamed(config: GraphConfig, args: argparse.Namespace) -> GraphConfig:

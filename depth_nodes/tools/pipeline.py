@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import itertools
+import sys
 import threading
 import time
 from pathlib import Path
@@ -121,9 +122,8 @@ def run_pipeline(config_path: str | Path | GraphConfig, *,
     config = compose_remappings(config, user_remappings(ros_args or []))
     params = load_params_file(params_file) if params_file else {}
     for key in unmatched_entries(config, params):
-        if log is not None:
-            log.write(f'warning: parameter file entry {key!r} matches no node of the graph; '
-                      'it was ignored\n')
+        print(f'depth-nodes pipeline: warning: parameter file entry {key!r} matches no node '
+              'of the graph; it is ignored', file=sys.stderr)
     if threads is not None and not 1 <= threads <= MAX_EXECUTOR_THREADS:
         raise ConfigError(f'--threads must be in 1..{MAX_EXECUTOR_THREADS}, got {threads}')
     context = Context()
