@@ -358,3 +358,31 @@ def test_bench_reports_times_and_sizes(ros_env: dict[str, str]) -> None:
     text = bench.format()
     assert 'node / SGM' in text
     assert '9.83 MB (32 bytes x 307200 points)' in text
+
+
+def test_compressed_colour_and_its_hostile_forms(context: Context) -> None:
+    """image_transport: compressed colours the cloud from left/image_rect_color/compressed
+    (PNG: the raw image's colours exactly); a damaged JPEG or a foreign format is one
+    counted drop of its kind."""
+    from sensor_msgs.msg import CompressedImage
+
+    from depth_nodes.ros.transport import compress_image
+
+    n = _make(context, image_transport='compressed')
+    try:
+        assert '/left/image_rect_color/compressed' in [s.topic for s in n.inputs]
+        raw = _make(context)
+        raw.on_frame(**_inputs())
+        png = compress_image(FRAME.left_rect_gt, 'rgb8', codec='png')
+        n.on_frame(**{**_inputs(), 'image': png})
+        assert n.drops == {}
+        assert bytes(n.outbox['/points2'].data) == bytes(raw.outbox['/points2'].data)
+        raw.destroy_node()
+        damaged = compress_image(FRAME.left_rect_gt, 'rgb8', codec='jpeg')
+        damaged.data = bytes(damaged.data)[:100]
+        n.on_frame(**{**_inputs(), 'image': damaged})
+        foreign = CompressedImage(format='rgb8; webp compressed rgb8', data=bytes(png.data))
+        n.on_frame(**{**_inputs(), 'image': foreign})
+        assert n.drops == {'decode_failed': 1, 'unsupported_format': 1}
+    finally:
+        n.destroy_node()

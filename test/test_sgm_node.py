@@ -317,3 +317,29 @@ def test_compressed_and_bayer_inputs_match_the_raw_grey_pair(context: Context) -
         assert n.drops == {}
     finally:
         n.destroy_node()
+
+
+def test_hostile_compressed_and_bayer_inputs_are_counted(context: Context) -> None:
+    from sensor_msgs.msg import CompressedImage
+
+    from depth_nodes.ros.transport import compress_image
+
+    n = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('image_transport', value='compressed')])
+    n.outbox = {}
+    n.sink = lambda topic, msg: n.outbox.__setitem__(topic, msg)
+    try:
+        good = compress_image(FRAME.right_rect_gt, 'mono8', codec='png')
+        damaged = compress_image(FRAME.left_rect_gt, 'mono8', codec='jpeg')
+        damaged.data = bytes(damaged.data)[:50]
+        odd_bayer = compress_image(np.zeros((120, 159), np.uint8), 'bayer_rggb8', codec='png')
+        for left, reason in ((damaged, 'decode_failed'), (odd_bayer, 'malformed_image'),
+                             (CompressedImage(format='mono8; h264 compressed mono8',
+                                              data=bytes(good.data)), 'unsupported_format')):
+            msgs = _inputs()
+            msgs[0], msgs[2] = left, good
+            n.on_frame(*msgs)
+            assert n.drops[reason] == 1, n.drops
+        assert n.outbox == {}
+    finally:
+        n.destroy_node()
