@@ -161,7 +161,8 @@ def test_odd_sizes_are_malformed(encoding: str, shape: tuple[int, ...], match: s
 
 def test_odd_nv21_is_malformed() -> None:
     msg = array_to_image(np.zeros((72, 63), np.uint8), 'nv21')
-    with pytest.raises(MessageError, match='nv21 image is 63x48: NV21 needs an even width'):
+    with pytest.raises(MessageError,
+                       match=r'nv21 image of 72 stored rows \(63 wide\): NV21 needs an even'):
         message_pixels(msg)
 
 

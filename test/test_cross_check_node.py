@@ -247,20 +247,25 @@ def test_confidence_on_the_bundled_bags(stereo_reports: dict[str, tuple[Path, Ev
     assert np.isfinite(read_disparity(out).disparity).all()  # the shipped output is dense
 
 
-def test_disp12_max_diff_zero_turns_the_check_off(context: Context) -> None:
-    """stereo_image_proc's 0 (off), also reaching this node through a `/**` entry: every
-    pixel with a partner is kept, whatever the two views say."""
-    node = CrossCheckNode(context=context, parameter_overrides=[
-        Parameter('disp12_max_diff', value=0), Parameter('speckle_size', value=0)])
-    node.outbox = {}
-    node.sink = lambda topic, msg: node.outbox.__setitem__(topic, msg)
-    try:
-        node.on_frame(*_inputs())
-        kept = read_disparity(node.outbox['/disparity_checked']).disparity
-        lr = left_right_check(MATCH.disparity, MATCH.disparity_right, max_diff=1.0)
-        with_partner = np.isin(lr.labels, (VALID, MISMATCH, OUTSIDE)) | (
-            (lr.labels == OCCLUDED) & np.isfinite(lr.difference))
-        np.testing.assert_array_equal(np.isfinite(kept), with_partner)
-        assert (lr.labels == MISMATCH).any()  # there was something to drop
-    finally:
-        node.destroy_node()
+def test_disp12_max_diff_zero_is_one_and_minus_one_is_off(context: Context) -> None:
+    """stereo_image_proc's default 0 (which also reaches this node through a `/**` entry)
+    checks at 1 px, as OpenCV's StereoSGBM reads it; -1 keeps every pixel with a partner,
+    whatever the two views say."""
+    def run(value: int) -> np.ndarray:
+        node = CrossCheckNode(context=context, parameter_overrides=[
+            Parameter('disp12_max_diff', value=value), Parameter('speckle_size', value=0)])
+        node.outbox = {}
+        node.sink = lambda topic, msg: node.outbox.__setitem__(topic, msg)
+        try:
+            node.on_frame(*_inputs())
+            return read_disparity(node.outbox['/disparity_checked']).disparity.copy()
+        finally:
+            node.destroy_node()
+
+    np.testing.assert_array_equal(run(0), run(1))
+    kept = run(-1)
+    lr = left_right_check(MATCH.disparity, MATCH.disparity_right, max_diff=1.0)
+    with_partner = np.isin(lr.labels, (VALID, MISMATCH, OUTSIDE)) | (
+        (lr.labels == OCCLUDED) & np.isfinite(lr.difference))
+    np.testing.assert_array_equal(np.isfinite(kept), with_partner)
+    assert (lr.labels == MISMATCH).any()  # there was something to drop

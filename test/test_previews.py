@@ -96,3 +96,25 @@ def test_bad_requests_are_one_line_errors(tmp_path: Path) -> None:
                      1)
     with pytest.raises(BagError, match='holds no disparity, depth or confidence topic'):
         bag_previews(tmp_path / 'empty', tmp_path / 'png')
+
+
+def test_a_colour_left_image_keeps_its_colours_and_the_maps_their_values(
+        tmp_path: Path) -> None:
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[:, :, 0] = 200  # red: would turn blue if the channels were swapped
+    depth = np.full((H, W), 2000, np.uint16)  # 2 m in millimetres
+    with BagWriter(tmp_path / 'bag') as writer:
+        header = Header()
+        header.stamp.sec = 3
+        writer.write('/cam/left/image_rect_color', array_to_image(rgb, 'rgb8', header), 1)
+        writer.write('/cam/depth', array_to_image(depth, '16UC1', header), 1)
+        writer.write('/cam/confidence', array_to_image(
+            np.full((H, W), 0.25, np.float32), '32FC1', header), 1)
+    bag_previews(tmp_path / 'bag', tmp_path / 'png')
+    img = cv2.imread(str(tmp_path / 'png' / '3000000000_cam_depth_depth.png'))[22:]
+    np.testing.assert_array_equal(img[0, 0], [0, 0, 200])  # BGR on disk: red
+    expected = colour(np.full((1, 1), 2.0, np.float32), 0.0, 2.0, cv2.COLORMAP_TURBO)
+    np.testing.assert_array_equal(img[H // 2, W + W // 2], expected[0, 0])  # 2 m at the top
+    conf = cv2.imread(str(tmp_path / 'png' / '3000000000_cam_confidence.png'))[22:]
+    expected = colour(np.full((1, 1), 0.25, np.float32), 0.0, 1.0, cv2.COLORMAP_VIRIDIS)
+    np.testing.assert_array_equal(conf[H // 2, W + W // 2], expected[0, 0])

@@ -249,8 +249,10 @@ def test_compressed_transport_subscribes_image_compressed_and_matches_raw(
     png = compress_image(FRAME.left_raw, 'rgb8', codec='png')
     image_spec.callback(_stamped(png, 1))
     info_spec.callback(_stamped(info, 1))
-    expected = Rectifier().rectify(FRAME.left_raw, FRAME.left_camera)
+    # image_transport stores colour as BGR: the rectified colour image is bgr8
+    expected = Rectifier().rectify(FRAME.left_raw[:, :, ::-1].copy(), FRAME.left_camera)
     assert [t for t, _ in node.outbox] == ['/image_rect_color', '/image_rect']
+    assert node.outbox[0][1].encoding == 'bgr8'
     np.testing.assert_array_equal(image_to_array(node.outbox[0][1]), expected)
     jpeg = compress_image(FRAME.left_raw, 'rgb8', codec='jpeg')
     jpeg.data = bytes(jpeg.data)[:200]

@@ -239,7 +239,7 @@ def test_the_checks_of_the_raw_output_are_parameters(node: Any, context: Context
     with tuner(node, context) as tune:
         node.on_frame(*_inputs())
         checked = read_disparity(node.outbox['/disparity']).disparity.copy()
-        results = tune(disp12_max_diff=0, speckle_size=0, uniqueness_ratio=0.0,
+        results = tune(disp12_max_diff=-1, speckle_size=0, uniqueness_ratio=0.0,
                        border_cost=3.5, border_extrapolation=1.0)
         assert all(r.successful for r in results), results
         node.on_frame(*_inputs())

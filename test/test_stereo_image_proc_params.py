@@ -132,3 +132,26 @@ def test_p2_up_to_the_four_path_limit_is_accepted(context: Context) -> None:
         assert node.params.values['P2'] == 16000.0
     finally:
         node.destroy_node()
+
+
+def test_a_file_that_only_picks_opencv_gets_stereo_image_procs_defaults(
+        tmp_path: Path) -> None:
+    """`stereo_algorithm: 1` alone, through the shipped graph: StereoSGBM with
+    stereo_image_proc's defaults (built here with cv2 directly, not through the package's
+    wrapper): window 15, P1 200, P2 400, uniqueness 15, speckles 100 / 4, disp12 0,
+    prefilter cap 31, MODE_SGBM, 64 disparities."""
+    import cv2
+
+    params = tmp_path / 'sip.yaml'
+    params.write_text('disparity_node:\n  ros__parameters: {stereo_algorithm: 1}\n')
+    report = process_bag(REPO / 'bags' / 'stereo_qvga_color', tmp_path / 'out',
+                         params_file=params)
+    assert sum(sum(c.values()) for c in report.drops.values()) == 0, report.format()
+    left, right, disparity = _rectified_and_disparity(tmp_path / 'out')
+    sgbm = cv2.StereoSGBM.create(minDisparity=0, numDisparities=64, blockSize=15, P1=200,
+                                 P2=400, disp12MaxDiff=0, preFilterCap=31, uniquenessRatio=15,
+                                 speckleWindowSize=100, speckleRange=4,
+                                 mode=cv2.STEREO_SGBM_MODE_SGBM)
+    raw = sgbm.compute(left, right)
+    expected = np.where(raw >= 0, raw.astype(np.float32) / 16, np.nan)
+    np.testing.assert_array_equal(disparity, expected)

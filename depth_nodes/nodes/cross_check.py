@@ -19,7 +19,7 @@ ApproximateTime policy). Publishes, with the left disparity's header:
 
 The algorithm lives in :mod:`depth_nodes.core.cross_check`. Parameters (all but the
 synchronisation ones change at runtime and apply from the next frame): ``disp12_max_diff``
-(0 or -1: no left-right check, stereo_image_proc's meaning),
+(0 counts as 1 px, as in OpenCV's StereoSGBM; -1: no left-right check),
 ``speckle_size``, ``speckle_range``, ``fill_holes``, ``fill_mode``, ``median_size``,
 ``keep_extrapolated``, ``confidence_window``, ``filled_confidence``.
 
@@ -44,7 +44,7 @@ from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import NodeParameters, ParamSpec
+from depth_nodes.ros.params import NodeParameters, ParamSpec, lr_threshold
 from depth_nodes.ros.workers import use_threads
 
 
@@ -67,7 +67,7 @@ def _pixels(low: float, high: float) -> Any:
     return check
 
 
-#: disp12_max_diff of 0 or -1 (no left-right check): any difference is consistent.
+#: disp12_max_diff of -1 (no left-right check): any difference is consistent.
 NO_CHECK = 1e6
 
 PARAMETERS = [
@@ -78,9 +78,9 @@ PARAMETERS = [
     ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
               'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
     ParamSpec('disp12_max_diff', 1.0, 'Largest |d_left - d_right| in px of a consistent '
-              'pixel (left-right check), up to 64; 0 or -1: no check (stereo_image_proc\'s '
-              'meaning); integer or double', dynamic_typing=True,
-              check=_pixels(-1.0, 64.0)),
+              'pixel (left-right check), up to 64; 0 counts as 1, as in OpenCV\'s StereoSGBM '
+              '(stereo_image_proc\'s default 0 reaches this node through /**); -1: no '
+              'check; integer or double', dynamic_typing=True, check=_pixels(-1.0, 64.0)),
     ParamSpec('speckle_size', 100, 'Largest area in px of a disparity region removed as a '
               'speckle (0: off)', 0, 100000),
     ParamSpec('speckle_range', 2.0, 'Largest disparity step in px within one region of '
@@ -164,7 +164,7 @@ class CrossCheckNode(DepthNode):
         ratio = cost[0]
         if np.isnan(ratio).all():  # no matching cost (OpenCV): leave distinctiveness out
             ratio = np.zeros_like(ratio)
-        max_diff = values['disp12_max_diff']
+        max_diff = lr_threshold(values['disp12_max_diff'])
         result = cross_check(
             left.disparity, right.disparity, ratio,
             disp12_max_diff=max_diff if max_diff > 0 else NO_CHECK,

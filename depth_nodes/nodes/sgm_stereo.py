@@ -28,7 +28,8 @@ the disparity its neighbours carry in (``border_cost``) up to ``border_extrapola
 disparity_range px past the border; beyond that the pixels are invalid.
 
 Frames without output are counted and logged with a reason: ``size_mismatch``,
-``encoding_mismatch``, ``unsupported_encoding``, ``malformed_image``, ``uncalibrated``,
+``encoding_mismatch``, ``unsupported_encoding``, ``malformed_image``, ``decode_failed``,
+``unsupported_format`` (a compressed image that cannot be read), ``uncalibrated``,
 ``bad_calibration``, ``camera_info_mismatch`` (camera_info size differs from the image),
 ``range_too_wide`` (the disparity window does not fit the image), ``sync_*``, and
 ``match_failed`` (the matcher raised; not expected, but never silent).
@@ -58,9 +59,15 @@ from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, SUBPIXEL_STEP
 from depth_nodes.ros.disparity import build_disparity
-from depth_nodes.ros.image import array_to_image
+from depth_nodes.ros.image import array_to_image, to_uint8
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec, one_of
+from depth_nodes.ros.params import (
+    IMAGE_TRANSPORT,
+    NodeParameters,
+    ParamSpec,
+    lr_threshold,
+    one_of,
+)
 from depth_nodes.ros.workers import OrderedWorkers, use_threads
 
 
@@ -157,7 +164,8 @@ PARAMETERS = [
     ParamSpec('speckle_range', _default('speckle_range'), 'Largest disparity step in px '
               'within one speckle region', 0, 64),
     ParamSpec('disp12_max_diff', _default('disp12_max_diff'), 'Left-right check: largest '
-              '|d_left - d_right| in px; 0 or -1: off (census SGM and OpenCV SGBM)', -1, 128),
+              '|d_left - d_right| in px; 0 counts as 1, as in OpenCV\'s StereoSGBM; census '
+              'SGM: -1 turns the check off (block matching has none, as upstream)', -1, 128),
     ParamSpec('threads', 0, 'Threads of the matcher (every algorithm); 0 (or more than the '
               'cores): every core. In a '
               'graph of several processes on few cores, 1 wastes less CPU on waiting '
@@ -221,7 +229,8 @@ def sgm_params(values: Mapping[str, Any]) -> SgmParams:
         median_filter=values['median_filter'], match_brightness=values['match_brightness'],
         border_cost=values['border_cost'],
         border_extrapolation=values['border_extrapolation'],
-        disp12_max_diff=values['disp12_max_diff'], speckle_size=values['speckle_size'],
+        disp12_max_diff=lr_threshold(values['disp12_max_diff']),
+        speckle_size=values['speckle_size'],
         speckle_range=values['speckle_range'])
 
 
@@ -250,8 +259,7 @@ def bm_settings(values: Mapping[str, Any]) -> BmSettings:
 def opencv_disparity(left: Any, right: Any, values: Mapping[str, Any]) -> Any:
     """The disparity of OpenCV's algorithm of ``values`` (stereo_algorithm 0 or 1) on a
     grey pair (16-bit images are taken at their top 8 bits, as cv_bridge's mono8 would)."""
-    pair = [np.ascontiguousarray(a >> 8 if a.dtype == np.uint16 else a, np.uint8)
-            for a in (left, right)]
+    pair = [to_uint8(a) for a in (left, right)]
     lo, n = values['min_disparity'], values['disparity_range']
     if values['stereo_algorithm'] == BLOCK_MATCHING:
         return opencv_bm(*pair, bm_settings(values), min_disparity=lo, disparity_range=n)
@@ -337,11 +345,16 @@ class SgmStereoNode(DepthNode):
         if values['stereo_algorithm'] != CENSUS_SGM:  # frame by frame
             start = time.perf_counter()
             use_threads(values['threads'])
-            disparity = opencv_disparity(left, right, values)
+            try:
+                disparity = opencv_disparity(left, right, values)
+                mirrored = (opencv_disparity(right[:, ::-1], left[:, ::-1], values)[:, ::-1]
+                            if values['right_view'] else None)
+            except (cv2.error, ValueError) as exc:  # not expected, never silent
+                self._frame_failed(exc)
+                return
             self.pub_disparity.publish(build_disparity(disparity, header, delta_d=1 / 16,
                                                        **common))
-            if values['right_view']:  # what the cross-check needs; OpenCV has no cost
-                mirrored = opencv_disparity(right[:, ::-1], left[:, ::-1], values)[:, ::-1]
+            if mirrored is not None:  # what the cross-check needs; OpenCV has no cost
                 self.pub_disparity_right.publish(build_disparity(
                     np.ascontiguousarray(mirrored), right_msg.header, delta_d=1 / 16,
                     **right_common))

@@ -197,12 +197,12 @@ def rename_cameras(config: GraphConfig, *, namespace: str | None = None,
     for spec in config.nodes:
         remaps = {src: move(dst) for src, dst in spec.remappings.items()}
         in_root = spec.namespace.rstrip('/') == root.rstrip('/')
-        for side, new in sides.items():
-            if in_root:  # relative names of this node that pass through a side's namespace
-                for topic in CAMERA_TOPICS:
-                    remaps.setdefault(f'{side}/{topic}', f'{new}/{topic}')
-        if new_image is not None and not in_root:
-            remaps.setdefault('image_raw', new_image)
+        # the relative camera names this node may use, where they moved (a node at the
+        # root reaches them through left/ and right/, one in a side's namespace directly)
+        prefixes = ('left/', 'right/') if in_root else ('',)
+        for name in (f'{prefix}{topic}' for prefix in prefixes for topic in CAMERA_TOPICS):
+            if move(name) != name:
+                remaps.setdefault(name, move(name))
         namespace = move(spec.namespace) or '/'
         aliases = list(spec.aliases)
         if namespace != spec.namespace:  # a parameter file written for the graph's names
@@ -369,17 +369,12 @@ def instantiate(spec: NodeSpec, params: dict[str, Any], *, required: set[str] | 
     return node
 
 
-def external_image_nodes(nodes: list[Any]) -> list[str]:
-    """Full names of the nodes that read camera images from outside the graph (an Image
-    input no node of ``nodes`` publishes) and have an ``image_transport`` parameter: the
-    ones a camera's compressed topics must reach."""
-    from sensor_msgs.msg import CompressedImage, Image
-
-    produced = {topic for node in nodes for topic in node.outputs}
-    return [node.get_fully_qualified_name() for node in nodes
-            if node.has_parameter('image_transport') and any(
-                spec.msg_type in (Image, CompressedImage) and spec.topic not in produced
-                for spec in node.inputs)]
+def camera_readers(config: GraphConfig) -> list[str]:
+    """Full names of the nodes of ``config`` that read a camera driver's images (their
+    class says ``reads_camera_images``: the rectifier, the structured-light decoder): the
+    ones an ``image_transport`` choice for the camera applies to."""
+    return [spec.fully_qualified_name for spec in config.nodes
+            if getattr(resolve_plugin(spec.plugin), 'reads_camera_images', False)]
 
 
 def with_transport(params: dict[str, dict[str, Any]], node_names: list[str],

@@ -48,8 +48,8 @@ ENCODINGS: dict[str, tuple[np.dtype[Any], int]] = {
     'bgra16': (np.dtype(np.uint16), 4),
 }
 
-#: Bayer orders (ROS names the 2x2 tile from the top-left pixel) -> OpenCV's conversion
-#: codes of the same tile: (to BGR bilinear, edge-aware, VNG, to grey).
+#: Bayer orders: ROS names the 2x2 tile from the top-left pixel, and so do OpenCV's
+#: ``COLOR_Bayer<TILE>2...`` codes (its older names, ``BayerBG`` for RGGB, differ).
 _BAYER_ORDERS = {
     'rggb': 'RGGB', 'bggr': 'BGGR', 'gbrg': 'GBRG', 'grbg': 'GRBG',
 }
@@ -276,6 +276,32 @@ def to_rgb8(arr: NDArray[Any], encoding: str) -> NDArray[np.uint8]:
     return np.repeat(mono[:, :, None], 3, axis=2)
 
 
+def _even_mosaic(arr: NDArray[Any], encoding: str) -> None:
+    h, w = arr.shape[:2]
+    if h % 2 or w % 2:
+        raise MessageError(f'{encoding} image is {w}x{h}: a Bayer mosaic needs an even '
+                           'width and height')
+
+
+def bayer_to_gray(arr: NDArray[Any], encoding: str) -> NDArray[Any]:
+    """A Bayer mosaic (``bayer_<tile><bits>``) interpolated straight to grey.
+
+    Raises:
+        MessageError: An odd width or height.
+    """
+    _even_mosaic(arr, encoding)
+    code = getattr(cv2, f'COLOR_Bayer{_BAYER_ORDERS[encoding[6:10]]}2GRAY')
+    return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), code))
+
+
+def to_uint8(grey: NDArray[Any]) -> NDArray[np.uint8]:
+    """A grey image as 8 bits: 16-bit samples by their top byte (cv_bridge's mono8 of a
+    mono16 image scales the same way), 8-bit ones as they are."""
+    if grey.dtype == np.uint16:
+        return np.ascontiguousarray(grey >> 8, dtype=np.uint8)
+    return np.ascontiguousarray(grey, dtype=np.uint8)
+
+
 def decode_camera_image(arr: NDArray[Any], encoding: str, *,
                         debayer: int = 3) -> tuple[NDArray[Any], str]:
     """Turn a camera-native image (:data:`CAMERA_ENCODINGS`) into ``bgr8`` (``bgr16`` for a
@@ -297,10 +323,7 @@ def decode_camera_image(arr: NDArray[Any], encoding: str, *,
     if encoding not in CAMERA_ENCODINGS:
         return arr, encoding
     if encoding.startswith('bayer_'):
-        h, w = arr.shape[:2]
-        if h % 2 or w % 2:
-            raise MessageError(f'{encoding} image is {w}x{h}: a Bayer mosaic needs an even '
-                               'width and height')
+        _even_mosaic(arr, encoding)
         if debayer not in DEBAYER_METHODS:
             raise EncodingError(f'debayer method {debayer!r} is not one of '
                                 f'{", ".join(map(str, DEBAYER_METHODS))}')
@@ -316,7 +339,8 @@ def decode_camera_image(arr: NDArray[Any], encoding: str, *,
         h = arr.shape[0] * 2 // 3
         w = arr.shape[1]
         if h % 2 or w % 2 or arr.shape[0] != h + h // 2:
-            raise MessageError(f'nv21 image is {w}x{h}: NV21 needs an even width and height')
+            raise MessageError(f'nv21 image of {arr.shape[0]} stored rows ({w} wide): NV21 '
+                               'needs an even width and height')
         return np.asarray(cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_YUV2BGR_NV21)), 'bgr8'
     if arr.shape[1] % 2:
         raise MessageError(f'{encoding} image is {arr.shape[1]}x{arr.shape[0]}: YUV 4:2:2 '

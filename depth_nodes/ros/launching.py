@@ -24,12 +24,13 @@ from typing import Any
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.ros.graph import (
+    camera_readers,
     load_graph_config,
     load_params_file,
     parameters_for,
     rename_cameras,
-    resolve_plugin,
     unmatched_entries,
+    with_transport,
 )
 from depth_nodes.ros.transport import TRANSPORTS
 
@@ -69,12 +70,11 @@ def launch_nodes(config_path: str | Path, *, params_file: str | None = None,
     if image_transport and image_transport not in TRANSPORTS:
         raise ConfigError(f'image_transport {image_transport!r} is not one of '
                           f'{", ".join(TRANSPORTS)}')
+    if image_transport:
+        params = with_transport(params, camera_readers(config), image_transport)
     nodes = []
     for spec in config.nodes:
         values = parameters_for(spec, params)
-        if image_transport and getattr(resolve_plugin(spec.plugin), 'reads_camera_images',
-                                       False):
-            values['image_transport'] = image_transport
         nodes.append({'executable': spec.plugin, 'name': spec.name,
                       'namespace': spec.namespace, 'parameters': [values],
                       'remappings': list(spec.remappings.items())})

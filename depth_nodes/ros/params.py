@@ -152,3 +152,12 @@ IMAGE_TRANSPORT = ParamSpec(
     'image_transport', 'raw', 'How the camera images arrive: raw (sensor_msgs/Image on the '
     'topic), compressed (sensor_msgs/CompressedImage, JPEG or PNG, on <topic>/compressed) or '
     'compressedDepth (<topic>/compressedDepth)', read_only=True, check=one_of(TRANSPORTS))
+
+
+def lr_threshold(value: float) -> float:
+    """``disp12_max_diff`` as OpenCV's StereoSGBM reads it: 0 means 1 px (so
+    stereo_image_proc's default, 0, checks at 1 px); a negative value turns the check off
+    (this package's; OpenCV cannot)."""
+    if value < 0:
+        return -1.0
+    return float(value) if value > 0 else 1.0

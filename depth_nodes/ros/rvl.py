@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from depth_nodes.errors import MessageError
+from depth_nodes.errors import DecodeError
 
 __all__ = ['rvl_decode', 'rvl_encode']
 
@@ -84,7 +84,7 @@ def rvl_decode(data: bytes | NDArray[np.uint8], width: int, height: int) -> U16:
     """Decode ``width x height`` uint16 pixels from an RVL stream.
 
     Raises:
-        MessageError: The stream ends early, or a run or a number does not fit the image.
+        DecodeError: The stream ends early, or a run or a number does not fit the image.
     """
     buf = np.frombuffer(bytes(data), np.uint8)
     pad = (-buf.size) % 4
@@ -97,7 +97,7 @@ def rvl_decode(data: bytes | NDArray[np.uint8], width: int, height: int) -> U16:
         why = {_TRUNCATED: 'the stream ends before the image does',
                _OVERRUN: 'a run is longer than the image',
                _TOO_LONG: 'a number has too many digits'}[status]
-        raise MessageError(f'corrupt RVL data for a {width}x{height} image: {why}')
+        raise DecodeError(f'corrupt RVL data for a {width}x{height} image: {why}')
     return out.reshape(height, width)
 
 

@@ -9,10 +9,12 @@ frame that cannot be decoded is counted once, under one reason.
 
 Formats read (image_transport_plugins' conventions):
 
-* ``compressed``: ``format`` is ``"<encoding>; <jpeg|png> compressed <bgr8|rgb8|...>"``
-  (older publishers wrote ``"jpeg"`` / ``"png"`` alone: the encoding then follows from the
-  decoded channels). Colour is stored as BGR unless the text says ``compressed rgb``; a
-  Bayer mosaic is stored as one channel and demosaiced after decoding, like a raw one.
+* ``compressed``: ``format`` is ``"<encoding>; <jpeg|png> compressed <stored>"``: the
+  publisher converted a colour image to ``<stored>`` (``bgr8`` for JPEG, ``bgr8`` /
+  ``bgr16`` for PNG; alpha dropped) before compressing it, so the pixels come back in
+  that encoding; with no ``<stored>`` (mono and Bayer images) they are ``<encoding>``, and
+  a Bayer mosaic is demosaiced after decoding, like a raw one. Older publishers wrote
+  ``"jpeg"`` / ``"png"`` alone: the encoding then follows from the decoded channels.
 * ``compressedDepth``: ``"<16UC1|32FC1>; compressedDepth <png|rvl>"``: a 12-byte header
   (int32 format, two float32 quantisation parameters) then a PNG or RVL image. 16UC1 is
   stored as it is; 32FC1 as quantised inverse depth, ``depth = a / (q - b)``, 0 meaning no
@@ -34,13 +36,14 @@ import numpy as np
 from numpy.typing import NDArray
 from sensor_msgs.msg import CompressedImage, Image
 
-from depth_nodes.errors import DecodeError, EncodingError, MessageError, UnsupportedFormatError
+from depth_nodes.errors import DecodeError, EncodingError, UnsupportedFormatError
 from depth_nodes.ros.image import (
-    _BAYER_ORDERS,
     READABLE_ENCODINGS,
+    bayer_to_gray,
     decode_camera_image,
     image_to_array,
     to_gray,
+    to_rgb8,
 )
 from depth_nodes.ros.rvl import rvl_decode, rvl_encode
 
@@ -52,9 +55,9 @@ __all__ = [
 
 #: The transports a node's ``image_transport`` parameter takes.
 TRANSPORTS = ('raw', 'compressed', 'compressedDepth')
-#: Largest image a compressed message may decode to (a 64 Mpx camera); a header claiming
-#: more is refused before anything is allocated.
-MAX_PIXELS = 1 << 26
+#: Largest image a compressed message may decode to (16.7 Mpx: twice a 4K frame; at most
+#: 128 MB of 16-bit RGBA); a header claiming more is refused before anything is allocated.
+MAX_PIXELS = 1 << 24
 #: compressedDepth's header: int32 format, float32 depthParam[2], little-endian.
 _DEPTH_HEADER = struct.Struct('<iff')
 
@@ -157,23 +160,16 @@ def _compressed_pixels(msg: Any) -> tuple[Array, str]:
         if not encoding:
             raise DecodeError(f'compressed image decodes to {channels} channels')
         return pixels, encoding
-    if encoding not in READABLE_ENCODINGS:
-        raise EncodingError(f'compressed image of encoding {encoding!r}: not a camera image '
+    target = rest.split()[2] if len(rest.split()) > 2 else None
+    stored = target or encoding  # what the pixels were when they were compressed
+    if stored not in READABLE_ENCODINGS:
+        raise EncodingError(f'compressed image of encoding {stored!r}: not a camera image '
                             'encoding this package reads')
-    dtype, want = READABLE_ENCODINGS[encoding]
-    if channels == 4 and want == 3:  # a PNG written with alpha
-        pixels = cv2.cvtColor(pixels, cv2.COLOR_BGRA2BGR)
-        channels = 3
+    dtype, want = READABLE_ENCODINGS[stored]
     if channels != want or pixels.dtype != dtype:
-        raise DecodeError(f'compressed image says {encoding} but decodes to {channels} '
+        raise DecodeError(f'compressed image says {stored} but decodes to {channels} '
                           f'channel(s) of {pixels.dtype}')
-    if want >= 3:
-        rgb_order = 'compressed rgb' in rest
-        wants_rgb = encoding.startswith('rgb')
-        if rgb_order != wants_rgb:
-            code = {3: cv2.COLOR_BGR2RGB, 4: cv2.COLOR_BGRA2RGBA}[want]
-            pixels = cv2.cvtColor(pixels, code)
-    return np.asarray(pixels), encoding
+    return np.asarray(pixels), stored
 
 
 # -- compressedDepth -------------------------------------------------------------------------
@@ -263,12 +259,7 @@ def gray_image(msg: Any) -> Array:
     if encoding == '32FC1':
         raise EncodingError('a 32FC1 image is not a camera image')
     if encoding.startswith('bayer_'):
-        h, w = pixels.shape[:2]
-        if h % 2 or w % 2:
-            raise MessageError(f'{encoding} image is {w}x{h}: a Bayer mosaic needs an even '
-                               'width and height')
-        code = getattr(cv2, f'COLOR_Bayer{_BAYER_ORDERS[encoding[6:10]]}2GRAY')
-        return np.asarray(cv2.cvtColor(np.ascontiguousarray(pixels), code))
+        return bayer_to_gray(pixels, encoding)
     pixels, encoding = decode_camera_image(pixels, encoding)
     return to_gray(pixels, encoding)
 
@@ -278,33 +269,35 @@ def gray_image(msg: Any) -> Array:
 
 def compress_image(pixels: Array, encoding: str, *, codec: str = 'jpeg', quality: int = 90,
                    header: Any = None) -> CompressedImage:
-    """A CompressedImage as image_transport's ``compressed`` publisher writes it.
+    """A CompressedImage as image_transport's ``compressed`` publisher writes it: a colour
+    image converted to ``bgr8`` (JPEG) or ``bgr8`` / ``bgr16`` (PNG), alpha dropped, and
+    named so in the format; one channel (mono, a Bayer mosaic) stored as it is.
 
     Args:
-        pixels: An image of ``encoding`` (colour in its own channel order).
-        encoding: Its encoding; colour is stored as BGR, one channel (mono or a Bayer
-            mosaic) as it is.
-        codec: ``'jpeg'`` (8-bit only) or ``'png'``.
+        pixels: An image of ``encoding``.
+        encoding: Its encoding.
+        codec: ``'jpeg'`` (8-bit output) or ``'png'``.
         quality: JPEG quality 1..100.
         header: A std_msgs/Header to copy.
 
     Raises:
-        EncodingError: JPEG of 16-bit pixels, or an encoding of another shape.
+        EncodingError: 16-bit mono as JPEG, or an encoding this package cannot write.
     """
     dtype, channels = READABLE_ENCODINGS.get(encoding, (None, 0))
     if dtype is None or channels == 2 or encoding == '32FC1' or encoding == 'nv21':
         raise EncodingError(f'cannot compress {encoding} pixels')
-    if codec == 'jpeg' and dtype != np.uint8:
-        raise EncodingError(f'JPEG takes 8-bit pixels, not {encoding}')
     data = np.ascontiguousarray(pixels)
-    target = encoding
+    target = ''
     if channels >= 3:
-        if encoding.startswith('rgb'):
-            data = cv2.cvtColor(data, cv2.COLOR_RGB2BGR if channels == 3 else cv2.COLOR_RGBA2BGRA)
-        if codec == 'jpeg' and channels == 4:
-            data = cv2.cvtColor(data, cv2.COLOR_BGRA2BGR)
-        target = ('bgr8' if dtype == np.uint8 else 'bgr16') if channels == 3 or codec == 'jpeg' \
-            else ('bgra8' if dtype == np.uint8 else 'bgra16')
+        rgb = to_rgb8(data, encoding) if codec == 'jpeg' or dtype == np.uint8 else None
+        if rgb is not None:
+            data, target = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), 'bgr8'
+        else:  # 16-bit colour as PNG keeps its depth
+            code = {'rgb16': cv2.COLOR_RGB2BGR, 'rgba16': cv2.COLOR_RGBA2BGR,
+                    'bgra16': cv2.COLOR_BGRA2BGR}.get(encoding)
+            data, target = (cv2.cvtColor(data, code) if code is not None else data), 'bgr16'
+    elif codec == 'jpeg' and dtype != np.uint8:
+        raise EncodingError(f'JPEG takes 8-bit pixels, not {encoding}')
     params = [cv2.IMWRITE_JPEG_QUALITY, int(quality)] if codec == 'jpeg' else [
         cv2.IMWRITE_PNG_COMPRESSION, 3]
     ok, buf = cv2.imencode('.jpg' if codec == 'jpeg' else '.png', data, params)

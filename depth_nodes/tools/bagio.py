@@ -113,7 +113,8 @@ class BagReader:
         for conn in self._reader.connections:
             self.topics[conn.topic] = conn.msgtype
             self.counts[conn.topic] += conn.msgcount
-            self.qos[conn.topic] = list(getattr(conn.ext, 'offered_qos_profiles', None) or [])
+            self.qos.setdefault(conn.topic, []).extend(
+                getattr(conn.ext, 'offered_qos_profiles', None) or [])
         self.custom_data: dict[str, str] = dict(self._reader.storage.metadata.custom or {})
 
     @property

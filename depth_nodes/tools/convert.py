@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from depth_nodes.errors import BagError, ConfigError
+from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.ros.image import array_to_image, image_to_array, to_rgb8
 from depth_nodes.ros.transport import compress_image
 from depth_nodes.tools.bagio import BagReader, BagWriter, remove_bag
@@ -67,11 +67,12 @@ def mosaic(rgb: np.ndarray, order: str) -> np.ndarray:
 
 
 def _renamed(topic: str, namespace: str | None) -> str:
-    if namespace is None:
-        return topic
+    """``topic`` with its first namespace replaced; a topic without one (/tf, /clock,
+    /diagnostics) stays where it is."""
     parts = topic.strip('/').split('/')
-    rest = '/'.join(parts[1:]) if len(parts) > 1 else parts[0]
-    return '/' + '/'.join(p for p in (namespace.strip('/'), rest) if p)
+    if namespace is None or len(parts) < 2:
+        return topic
+    return '/' + '/'.join(p for p in (namespace.strip('/'), *parts[1:]) if p)
 
 
 def _camera_image(msg: Any, options: ConvertOptions) -> tuple[str, Any]:
@@ -126,8 +127,9 @@ def convert_bag(in_bag: str | Path, out_bag: str | Path, options: ConvertOptions
                         suffix, msg = _camera_image(bag_msg.deserialize(), options)
                         writer.write(topic + suffix, msg, bag_msg.timestamp)
                     else:
-                        writer.write(topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype)
-        except BagError:
+                        writer.write(topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype,
+                                     qos=reader.qos.get(bag_msg.topic, ()))
+        except DepthNodesError as exc:  # nothing half-written is left behind
             remove_bag(out_bag)
-            raise
+            raise BagError(f'{in_bag}: {exc}; {out_bag} not written') from None
         return dict(writer.counts)

@@ -47,7 +47,8 @@ from depth_nodes.core.rectify import rectify_image
 from depth_nodes.errors import BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.image import image_to_array, to_gray
+from depth_nodes.ros.image import image_to_array, to_gray, to_uint8
+from depth_nodes.ros.transport import gray_image
 from depth_nodes.tools.bagio import BagReader
 from depth_nodes.tools.previews import MapView, previews_folder, write_views
 
@@ -190,7 +191,7 @@ def _rectified_pair(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> tup
     left = data.get(f'{ns}/left/image_rect', {}).get(stamp)
     right = data.get(f'{ns}/right/image_rect', {}).get(stamp)
     if left is not None and right is not None:
-        pair = [(to_gray(image_to_array(m), m.encoding)) for m in (left, right)]
+        pair = [gray_image(m) for m in (left, right)]
     else:
         pair = []
         for side in ('left', 'right'):
@@ -200,9 +201,8 @@ def _rectified_pair(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> tup
                 raise BagError(f'no rectified or raw {side} image with camera_info at stamp '
                                f'{stamp} under {ns}: cannot run the OpenCV baseline '
                                '(use --no-baseline)')
-            gray = to_gray(image_to_array(raw), raw.encoding)
-            pair.append(rectify_image(gray, camera_info_to_model(info)))
-    left_img, right_img = (np.ascontiguousarray(p, dtype=np.uint8) for p in pair)
+            pair.append(rectify_image(gray_image(raw), camera_info_to_model(info)))
+    left_img, right_img = (to_uint8(p) for p in pair)
     return left_img, right_img
 
 

@@ -27,7 +27,8 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
 
 from depth_nodes.errors import ConfigError, DepthNodesError
 from depth_nodes.tools.bagio import message_class
@@ -45,7 +46,8 @@ MAX_ARRAY = 16
 def graph_node(kind: str) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
     """A hidden node and its executor on a context of their own."""
     context = Context()
-    rclpy.init(args=[], context=context)
+    # stopping is ours (tools/signals.py), as for play and record
+    rclpy.init(args=[], context=context, signal_handler_options=SignalHandlerOptions.NO)
     node = Node(f'_depth_nodes_{kind}_{os.getpid()}', context=context,
                 start_parameter_services=False, enable_rosout=False)
     executor = SingleThreadedExecutor(context=context)
@@ -137,12 +139,20 @@ def topic_type(node: Node, executor: SingleThreadedExecutor, topic: str,
 
 
 def _qos_for(node: Node, topic: str) -> QoSProfile:
-    """Best effort (sensor data) unless every publisher is reliable: a best-effort reader
-    matches both kinds of writer."""
+    """Best effort (sensor data) unless every publisher is reliable (a best-effort reader
+    matches both kinds of writer); transient local when every publisher is, so a latched
+    message such as /tf_static's is received too."""
     publishers = node.get_publishers_info_by_topic(topic)
-    if publishers and all(p.qos_profile.reliability == 1 for p in publishers):  # RELIABLE
-        return QoSProfile(depth=10)
-    return qos_profile_sensor_data
+    if publishers and all(p.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                          for p in publishers):
+        qos = QoSProfile(depth=10)
+    else:
+        qos = QoSProfile(depth=qos_profile_sensor_data.depth,
+                         reliability=ReliabilityPolicy.BEST_EFFORT)
+    if publishers and all(p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                          for p in publishers):
+        qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
+    return qos
 
 
 # -- echo -------------------------------------------------------------------------------------
@@ -361,6 +371,8 @@ def diagnostics_view(*, period: float = 2.0, once: bool = False, timeout: float 
     (``once``: the first table that has every node seen so far, after ``period`` s)."""
     from diagnostic_msgs.msg import DiagnosticArray
 
+    if not period > 0:
+        raise ConfigError(f'--period must be positive, got {period:g}')
     statuses: dict[str, Any] = {}
 
     def on_array(array: Any) -> None:

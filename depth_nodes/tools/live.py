@@ -187,6 +187,8 @@ def _loop_step(reader: BagReader, topics: list[str]) -> tuple[int, int]:
     times: dict[str, list[int]] = {}
     for bag_msg in reader.messages(topics):
         times.setdefault(bag_msg.topic, []).append(bag_msg.timestamp)
+    if not times:
+        raise BagError(f'{reader.path}: the topics to play hold no messages')
     first = min(t[0] for t in times.values())
     last = max(t[-1] for t in times.values())
     busiest = max(times.values(), key=len)
@@ -195,13 +197,17 @@ def _loop_step(reader: BagReader, topics: list[str]) -> tuple[int, int]:
     return last - first + period, period
 
 
-def _restamped(data: bytes, msgtype: str, shift: int) -> bytes:
-    """The message with every std_msgs/Header stamp in it moved on by ``shift`` ns."""
-    from rclpy.serialization import deserialize_message, serialize_message
+def _restamped(bag_msg: Any, shift: int) -> bytes:
+    """The message with every std_msgs/Header stamp in it moved on by ``shift`` ns.
 
-    msg = deserialize_message(data, message_class(msgtype))
+    Raises:
+        BagError: The message cannot be deserialised.
+    """
+    from rclpy.serialization import serialize_message
+
+    msg = bag_msg.deserialize()
     if not _shift_stamps(msg, shift):
-        return data
+        return bytes(bag_msg.data)
     return bytes(serialize_message(msg))
 
 
@@ -216,7 +222,7 @@ def _shift_stamps(msg: Any, shift: int) -> bool:
             found = True
         elif hasattr(value, 'get_fields_and_field_types'):
             found |= _shift_stamps(value, shift)
-        elif kind.startswith('sequence<') and '/' in kind:
+        elif '/' in kind and isinstance(value, (list, tuple)):  # sequences, fixed arrays
             for item in value:
                 found |= _shift_stamps(item, shift)
     return found
@@ -229,7 +235,7 @@ def _wait_for_subscribers(pubs: dict[str, Any], timeout: float,
     start = time.monotonic()
     said = start
     while time.monotonic() - start < timeout and not stop_requested():
-        missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+        missing = [p.topic_name for p in pubs.values() if p.get_subscription_count() == 0]
         if not missing:
             return
         if log is not None and time.monotonic() - said >= 1.0:
@@ -259,7 +265,7 @@ def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
             clock.clock.sec, clock.clock.nanosec = divmod(bag_msg.timestamp + shift,
                                                           1_000_000_000)
             clock_pub.publish(clock)
-        data = _restamped(bag_msg.data, bag_msg.msgtype, shift) if shift else bag_msg.data
+        data = _restamped(bag_msg, shift) if shift else bag_msg.data
         pubs[bag_msg.topic].publish(data)
         count += 1
     return count

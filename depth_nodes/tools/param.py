@@ -328,9 +328,9 @@ def list_all_parameters(*, timeout: float = DEFAULT_TIMEOUT) -> dict[str, list[s
         settle(node, executor, DISCOVERY_S)
         names = visible_nodes(node)
     out: dict[str, list[str]] = {}
-    for name in names:
+    for name in names:  # a node seen in the graph answers at once, or has no services
         try:
-            out[name] = list_parameters(name, timeout=timeout)
+            out[name] = list_parameters(name, timeout=min(timeout, 3.0))
         except ConfigError:  # a node without parameter services, or gone meanwhile
             continue
     return out

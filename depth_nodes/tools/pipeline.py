@@ -39,8 +39,8 @@ from rclpy.signals import SignalHandlerOptions
 from depth_nodes.errors import ConfigError
 from depth_nodes.ros.graph import (
     GraphConfig,
+    camera_readers,
     create_nodes,
-    external_image_nodes,
     load_graph_config,
     load_params_file,
     unmatched_entries,
@@ -136,14 +136,9 @@ def run_pipeline(config_path: str | Path | GraphConfig, *,
     executors: list[Any] = []
     spinners: list[threading.Thread] = []
     try:
+        if image_transport is not None:
+            params = with_transport(params, camera_readers(config), image_transport)
         nodes = create_nodes(config, params, context=context)
-        if image_transport not in (None, 'raw'):
-            names = external_image_nodes(nodes)
-            for node in nodes:
-                node.destroy_node()
-            nodes = []
-            nodes = create_nodes(config, with_transport(params, names, image_transport),
-                                 context=context)
         for node in nodes:
             if threads is not None and threads > 1:
                 executor: Any = MultiThreadedExecutor(num_threads=threads, context=context)

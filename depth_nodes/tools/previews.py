@@ -10,6 +10,7 @@ on the right; pixels without a value are black.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,7 @@ from numpy.typing import NDArray
 
 from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.ros.disparity import read_disparity
+from depth_nodes.ros.image import to_rgb8
 from depth_nodes.ros.transport import image_pixels
 from depth_nodes.tools.bagio import BagReader
 
@@ -179,11 +181,10 @@ def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
                                   '/left/image_raw', '/left/image_raw/compressed'))}
         frames: dict[int, dict[str, Any]] = {}
         for bag_msg in reader.messages([*maps, *images]):
-            msg = bag_msg.deserialize()
-            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            stamp = header_stamp(bag_msg.data)  # read before deserialising the pixels
             if stamp not in frames and len(frames) >= max_frames:
                 continue
-            frames.setdefault(stamp, {})[bag_msg.topic] = msg
+            frames.setdefault(stamp, {})[bag_msg.topic] = bag_msg.deserialize()
     written: list[Path] = []
     for stamp, frame in sorted(frames.items()):
         for topic in maps:
@@ -199,6 +200,17 @@ def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
     return written
 
 
+def header_stamp(cdr: bytes) -> int:
+    """The header stamp (ns) of a serialised message whose first field is a
+    std_msgs/Header (every image, disparity and cloud type): read from the CDR bytes, after
+    the 4-byte encapsulation header whose second byte says the byte order."""
+    order = '<' if len(cdr) > 1 and cdr[1] & 1 else '>'
+    if len(cdr) < 12:
+        raise BagError('a message too short to hold a header stamp')
+    sec, nanosec = struct.unpack_from(f'{order}iI', cdr, 4)
+    return int(sec) * 1_000_000_000 + int(nanosec)
+
+
 def _left_image(frame: dict[str, Any], topic: str) -> Array | None:
     """The left camera image of ``topic``'s namespace in this frame, if the bag has one."""
     ns = topic.rsplit('/', 1)[0]
@@ -207,8 +219,7 @@ def _left_image(frame: dict[str, Any], topic: str) -> Array | None:
         msg = frame.get(f'{ns}/{suffix}')
         if msg is not None:
             try:
-                pixels, encoding = image_pixels(msg)
+                return cv2.cvtColor(to_rgb8(*image_pixels(msg)), cv2.COLOR_RGB2BGR)
             except DepthNodesError:
                 return None
-            return cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR) if encoding == 'rgb8' else pixels
     return None

@@ -22,8 +22,8 @@ from sensor_msgs.msg import Image
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.graph import (
     GraphConfig,
+    camera_readers,
     create_nodes,
-    external_image_nodes,
     load_graph_config,
     load_params_file,
     root_namespace,
@@ -98,9 +98,6 @@ class ProcessReport:
         for topic in self.shadowed:
             lines.append(f'note: input topic {topic} is also published by a node; '
                          'only the node output was written')
-        for key in self.unmatched_params:
-            lines.append(f'warning: parameter file entry {key!r} matches no node of the '
-                         'graph; it was ignored')
         for node, transport in sorted(self.transports.items()):
             lines.append(f'note: {node} reads its images with image_transport {transport} '
                          '(the bag holds no raw ones)')
@@ -197,6 +194,8 @@ def process_bag(
     params = load_params_file(params_file) if params_file else {}
     report = ProcessReport()
     report.unmatched_params = unmatched_entries(config, params)
+    if image_transport is not None:
+        params = with_transport(params, camera_readers(config), image_transport)
     reader = BagReader(in_bag)
     if reader.message_count == 0:
         reader.close()
@@ -209,17 +208,15 @@ def process_bag(
         report.nodes = [n.get_fully_qualified_name() for n in nodes]
         routes, produced = _routes(nodes)
         report.shadowed = sorted(produced & set(reader.topics))
-        if image_transport is not None:
-            switch = dict.fromkeys(external_image_nodes(nodes), image_transport)
-        else:  # raw, unless the bag holds only compressed images
-            switch = _compressed_inputs(nodes, reader, produced)
-        if any(t != 'raw' for t in switch.values()):
+        switch = {} if image_transport is not None else _compressed_inputs(nodes, reader,
+                                                                           produced)
+        if switch:  # raw was asked for nothing, and the bag holds only compressed images
             for node in nodes:
                 node.destroy_node()
             nodes = []
             for name, transport in switch.items():
                 params = with_transport(params, [name], transport)
-            report.transports = {k: v for k, v in switch.items() if v != 'raw'}
+            report.transports = switch
             nodes = create_nodes(config, params, context=context)
             routes, produced = _routes(nodes)
         _check_types(reader, routes)
@@ -270,6 +267,7 @@ def _compressed_inputs(nodes: list[Any], reader: BagReader, produced: set[str]
             for transport in ('compressed', 'compressedDepth'):
                 if reader.topics.get(f'{spec_in.topic}/{transport}') == COMPRESSED:
                     switch[node.get_fully_qualified_name()] = transport
+                    break
     return switch
 
 
@@ -327,7 +325,8 @@ def _run(
         report.done = done
         now[0] = bag_msg.timestamp
         if bag_msg.topic not in produced:
-            writer.write(bag_msg.topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype)
+            writer.write(bag_msg.topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype,
+                         qos=reader.qos.get(bag_msg.topic, ()))
             report.copied[bag_msg.topic] += 1
         subscribers = routes.get(bag_msg.topic)
         if subscribers and bag_msg.topic not in produced:
