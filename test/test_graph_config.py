@@ -132,7 +132,8 @@ def test_unknown_parameter_is_an_error(tmp_path: Path, ros_env: dict[str, str]) 
     try:
         spec = NodeSpec('invert', 'harness_nodes:InvertNode', '/cam', {'ofset': 3})
         with pytest.raises(ConfigError, match=r"/cam/invert .* has no parameter ofset "
-                                              r"\(parameters: diagnostics_period, offset"):
+                                              r"\(parameters: diagnostics_period, frame_id, "
+                                              r"offset"):
             instantiate(spec, spec.parameters, context=ctx)
         node = instantiate(NodeSpec('invert', 'harness_nodes:InvertNode', '/cam'),
                            {'offset': 3}, context=ctx)

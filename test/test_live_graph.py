@@ -192,7 +192,7 @@ def test_matcher_parameters_apply_from_the_next_frame(live: _Live) -> None:
 def test_an_invalid_value_is_refused_and_changes_nothing(live: _Live) -> None:
     refused = live.param('set', SGM, 'P1', '500')  # above P2 (220)
     assert refused.returncode == 1
-    assert 'Setting parameter failed: P2 (220.0) must be >= P1 (500.0)' in refused.stderr
+    assert 'Setting parameter failed: SGM parameter P2=220: must be >= P1 (500)' in refused.stderr
     assert live.param('get', SGM, 'P1').stdout.strip() == 'Double value is: 18.0'
     (out_of_range,) = live.set(SGM, disparity_range=0)
     assert not out_of_range.successful

@@ -29,10 +29,15 @@ from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.rectify import INTERPOLATIONS, Rectifier, interpolation_flag
 from depth_nodes.errors import CalibrationError, MessageError
 from depth_nodes.ros.camera_info import camera_info_to_model
-from depth_nodes.ros.image import DEBAYER_METHODS, array_to_image, to_gray
+from depth_nodes.ros.image import (
+    DEBAYER_METHODS,
+    READABLE_ENCODINGS,
+    array_to_image,
+    to_gray,
+)
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
-from depth_nodes.ros.transport import image_pixels
+from depth_nodes.ros.transport import image_pixels, is_compressed
 from depth_nodes.ros.workers import use_threads
 
 
@@ -93,6 +98,12 @@ class RectifyNode(DepthNode):
             self._info_key = key
         return self._models
 
+    def _size_mismatch(self, width: int, height: int, model: CameraModel,
+                       delivered: CameraModel) -> None:
+        self.drop('size_mismatch', f'image is {width}x{height} but camera_info describes '
+                  f'{delivered.width}x{delivered.height} (binning {model.binning_x}/'
+                  f'{model.binning_y}, roi {model.roi[:4]})')
+
     def on_frame(self, image_msg: Any, info_msg: CameraInfo) -> None:
         """Rectify one raw image with the CameraInfo of the same stamp."""
         interpolation = self.params.values['interpolation']
@@ -101,20 +112,27 @@ class RectifyNode(DepthNode):
             self.drop('uncalibrated', 'camera_info K is all zero: the camera is not '
                       'calibrated, nothing to rectify with')
             return
+        raw_message = not is_compressed(image_msg)  # its fields say what it holds
+        if raw_message and image_msg.encoding not in READABLE_ENCODINGS:
+            self.drop('unsupported_encoding', f'image encoding {image_msg.encoding!r} is not '
+                      f'supported (supported: {", ".join(READABLE_ENCODINGS)})')
+            return
         try:
             model, delivered = self._calibration(info_msg)
         except CalibrationError as exc:
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
+            return
+        if raw_message and (image_msg.width, image_msg.height) != (delivered.width,
+                                                                   delivered.height):
+            self._size_mismatch(image_msg.width, image_msg.height, model, delivered)
             return
         try:
             raw, encoding = image_pixels(image_msg, debayer=self.params.values['debayer'])
         except MessageError as exc:
             self.decoding_failed(exc, 'image')
             return
-        if raw.shape[:2] != (delivered.height, delivered.width):
-            self.drop('size_mismatch', f'image is {raw.shape[1]}x{raw.shape[0]} but '
-                      f'camera_info describes {delivered.width}x{delivered.height} '
-                      f'(binning {model.binning_x}/{model.binning_y}, roi {model.roi[:4]})')
+        if raw.shape[:2] != (delivered.height, delivered.width):  # a compressed image's
+            self._size_mismatch(raw.shape[1], raw.shape[0], model, delivered)
             return
         try:
             rectified = self.rectifier.rectify(raw, model, interpolation, reuse_output=True)
