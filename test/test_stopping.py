@@ -182,3 +182,34 @@ def test_a_second_signal_stops_at_once(tmp_path: Path, ros_env: dict[str, str]) 
     assert proc.returncode == 0, text
     assert 'Traceback' not in text
     assert 'interrupted' in text
+
+
+@pytest.mark.parametrize(('command', 'sig', 'ready_topic'), [
+    ([*CLI, 'pipeline'], signal.SIGTERM, '/stereo/points2'),
+    ([sys.executable, '-m', 'depth_nodes.nodes.rectify', '--ros-args', '-r',
+      '__ns:=/stereo/left', '-r', 'image:=image_raw'], signal.SIGINT,
+     '/stereo/left/image_rect'),
+])
+def test_stopping_while_frames_flow_is_quiet(tmp_path: Path, ros_env: dict[str, str],
+                                             command: list[str], sig: int,
+                                             ready_topic: str) -> None:
+    """Stopped in the middle of the stream: a frame in flight can no longer be published,
+    which is the end of the run; it used to be logged as an internal_error (or, at the
+    matcher, match_failed) with an RCLError traceback."""
+    before = _segments()
+    log, play_log = tmp_path / 'graph.log', tmp_path / 'play.log'
+    proc = _start(command, ros_env, log, background=True)
+    player = _start([*CLI, 'play', str(REPO / 'bags' / 'stereo_vga'), '--loop',
+                     '--wait-for-subscribers', '60'], ros_env, play_log)
+    try:
+        echo = subprocess.run([*CLI, 'topic', 'echo', ready_topic, '--count', '3',
+                               '--timeout', '120'], env=ros_env, capture_output=True,
+                              text=True, cwd=REPO, check=False, timeout=240)
+        assert echo.returncode == 0, echo.stderr + log.read_text()
+        text = _stop(proc, sig, log)
+    finally:
+        player.send_signal(signal.SIGINT)
+        player.wait(timeout=30)
+    for word in ('internal_error', 'match_failed', 'RCLError', 'context is invalid'):
+        assert word not in text, text
+    assert not _segments() - before

@@ -406,6 +406,8 @@ class SgmStereoNode(DepthNode):
         return matcher
 
     def _frame_failed(self, exc: BaseException) -> None:
+        if self.stopping:  # a frame in flight when Ctrl-C / SIGTERM came: not a failure
+            return
         self.drop('match_failed', f'the matcher failed on a frame: {type(exc).__name__}: {exc}')
 
     def destroy_node(self) -> None:

@@ -124,6 +124,8 @@ class Output:
         """Publish ``msg`` (or hand it to the harness sink); callable from any thread. With
         the node's ``frame_id`` parameter set, the message's header (and a DisparityImage's
         image header) get that frame, on a copy: the input's header is left alone."""
+        if self._node.stopping:  # the run is over: nothing can be sent any more
+            return
         frame = self._node.frame_override
         if frame:
             _set_frame(msg, frame)
@@ -263,7 +265,15 @@ class DepthNode(Node):
         try:
             callback(*args)
         except Exception as exc:  # the last line of defence: the node must go on
+            if self.stopping:  # a publish after Ctrl-C / SIGTERM shut the context down
+                return
             self.internal_error(exc, where)
+
+    @property
+    def stopping(self) -> bool:
+        """True once the node's context is shut down (Ctrl-C, SIGTERM): a frame still in
+        flight then cannot be published, which is the end of the run, not an error."""
+        return not self.context.ok()
 
     def internal_error(self, exc: BaseException, where: str) -> None:
         """Count an unexpected exception as an ``internal_error`` drop; log its traceback
@@ -485,7 +495,7 @@ class DepthNode(Node):
             self._window.drops[reason] += count
             now = time.monotonic()
             last = self._last_drop_log.get(reason)
-            log = last is None or now - last >= DROP_LOG_PERIOD_S
+            log = (last is None or now - last >= DROP_LOG_PERIOD_S) and not self.stopping
             if log:
                 self._last_drop_log[reason] = now
         if log:
