@@ -73,6 +73,10 @@ def _bag(path: Path, with_estimate: bool = True) -> tuple[np.ndarray, np.ndarray
 def test_scores_match_hand_computed_values(tmp_path: Path) -> None:
     bad, invalid = _bag(tmp_path / 'bag')
     report = evaluate_bag(tmp_path / 'bag', previews=tmp_path / 'png')
+    drawn = {p.name.split('_', 1)[1] for p in (tmp_path / 'png').glob('*.png')}
+    assert {'stereo_disparity_disparity.png', 'stereo_disparity_error.png',
+            'stereo_confidence_confidence.png', 'stereo_depth_depth.png',
+            'depth_gt_depth.png', 'ground_truth_disparity.png'} <= drawn, drawn
     rows = {r.method: r for r in report.rows}
     ours = rows['/stereo/disparity']
     n = bad.size

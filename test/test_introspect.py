@@ -156,3 +156,26 @@ def test_report_helpers_on_hand_made_values() -> None:
     assert text == "stamp:\n  sec: 0\n  nanosec: 0\nframe_id: 'cam'"
     assert summary(header) is None
     assert diag_table({}).startswith('no diagnostics yet')
+    from collections import deque
+
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+    status = DiagnosticStatus(name='/n', level=DiagnosticStatus.WARN, message='x', values=[
+        KeyValue(key='output /t rate (Hz)', value='7.0'), KeyValue(key='output /t total',
+                                                                    value='100'),
+        KeyValue(key='processing time mean (ms)', value='12.5'),
+        KeyValue(key='drops total', value='3'), KeyValue(key='drops sync_unmatched',
+                                                         value='3')])
+    row = diag_table({'/n': status}).splitlines()[1]
+    assert row.split() == ['/n', 'WARN', '7.0', '12.5', '3', 'sync_unmatched', '3']
+    # with the totals seen over time, the rate is frames per second over that window
+    steady = diag_table({'/n': status}, {'/n': deque([(0.0, 0), (10.0, 99)])})
+    assert steady.splitlines()[1].split()[2] == '9.9'
+
+
+def test_diag_once_without_a_graph_is_an_error() -> None:
+    from conftest import graph_env
+
+    result = run_cli(['diag', '--once', '--timeout', '2'], env=graph_env())
+    assert result.returncode == 1
+    assert 'error: no diagnostics within 2 s: is the graph running' in result.stderr

@@ -258,6 +258,7 @@ def test_a_parameter_file_entry_for_no_node_stops_the_launch(
 
     params = tmp_path / 'typo.yaml'
     params.write_text('sgm_stero:\n  ros__parameters: {P2: 300.0}\n')
-    with pytest.raises(ConfigError, match='entries sgm_stero match no node'):
+    with pytest.raises(ConfigError, match="entry 'sgm_stero' matches no node of the graph "
+                                          r"\(did you mean sgm_stereo\?\)"):
         run_launch_file(REPO / 'launch' / 'stereo_pipeline.launch.py',
                         source_prefix(tmp_path), monkeypatch, {'params_file': str(params)})

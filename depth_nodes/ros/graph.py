@@ -168,10 +168,10 @@ def rename_cameras(config: GraphConfig, *, namespace: str | None = None,
             characters ROS does not allow.
     """
     root = root_namespace(config)
-    new_root = root if namespace is None else _checked_namespace(namespace)
-    sides = {k: _checked_name(v, f'--{k}') for k, v in (('left', left), ('right', right))
+    new_root = root if namespace is None else checked_namespace(namespace)
+    sides = {k: checked_name(v, f'--{k}') for k, v in (('left', left), ('right', right))
              if v is not None and v != k}
-    new_image = None if image is None or image == 'image_raw' else _checked_name(image,
+    new_image = None if image is None or image == 'image_raw' else checked_name(image,
                                                                                   '--image')
 
     def move(name: str) -> str:
@@ -212,19 +212,22 @@ def rename_cameras(config: GraphConfig, *, namespace: str | None = None,
     return GraphConfig(config.name, nodes, config.source)
 
 
-def _checked_name(value: str, what: str) -> str:
+def checked_name(value: str, what: str) -> str:
+    """``value`` if it is a relative ROS name, else ConfigError naming ``what``."""
     if not value or not all(part and (part[0].isalpha() or part[0] == '_') and
                             all(c.isalnum() or c == '_' for c in part)
                             for part in value.split('/')):
-        raise ConfigError(f'{what} {value!r} is not a ROS name (letters, digits, _ and /)')
+        raise ConfigError(f'{what} {value!r} is not a ROS name (parts of letters, digits '
+                          'and _, each starting with a letter or _, joined by single /)')
     return value
 
 
-def _checked_namespace(value: str) -> str:
+def checked_namespace(value: str, what: str = '--namespace') -> str:
+    """``value`` as an absolute namespace (``/camera``), else ConfigError."""
     if not value.startswith('/'):
-        raise ConfigError(f'--namespace {value!r} must be absolute (start with /)')
+        raise ConfigError(f'{what} {value!r} must be absolute (start with /)')
     if value.strip('/'):
-        _checked_name(value.strip('/'), '--namespace')
+        checked_name(value.strip('/'), what)
     return '/' + value.strip('/')
 
 
@@ -298,6 +301,19 @@ def unmatched_entries(config: GraphConfig, params: dict[str, dict[str, Any]]) ->
     matches): rclpy would ignore them, so the commands report them."""
     known = {key for spec in config.nodes for key in node_keys(spec)}
     return sorted(key for key in params if key != '/**' and key not in known)
+
+
+def unmatched_warning(config: GraphConfig, key: str, *, ignored: bool = True) -> str:
+    """What to say of a parameter-file entry that matches no node: the closest name a node
+    answers to, and the names of the graph's nodes."""
+    import difflib
+
+    known = sorted({k for spec in config.nodes for k in node_keys(spec)})
+    close = difflib.get_close_matches(key, known, n=1)
+    hint = f' (did you mean {close[0]}?)' if close else ''
+    return (f'parameter file entry {key!r} matches no node of the graph{hint}'
+            f'{"; it is ignored" if ignored else ""} (nodes: '
+            f'{", ".join(n.fully_qualified_name for n in config.nodes)})')
 
 
 def resolve_plugin(plugin: str) -> type:

@@ -30,6 +30,7 @@ from depth_nodes.ros.graph import (
     parameters_for,
     rename_cameras,
     unmatched_entries,
+    unmatched_warning,
     with_transport,
 )
 from depth_nodes.ros.transport import TRANSPORTS
@@ -64,9 +65,8 @@ def launch_nodes(config_path: str | Path, *, params_file: str | None = None,
     params = load_params_file(params_file) if params_file else {}
     unmatched = unmatched_entries(config, params)
     if unmatched:
-        raise ConfigError(f'parameter file {params_file}: entries {", ".join(unmatched)} '
-                          f'match no node (nodes: '
-                          f'{", ".join(n.fully_qualified_name for n in config.nodes)})')
+        raise ConfigError(f'{params_file}: '
+                          f'{unmatched_warning(config, unmatched[0], ignored=False)}')
     if image_transport and image_transport not in TRANSPORTS:
         raise ConfigError(f'image_transport {image_transport!r} is not one of '
                           f'{", ".join(TRANSPORTS)}')

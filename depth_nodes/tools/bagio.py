@@ -188,6 +188,8 @@ class BagWriter:
     def __init__(self, path: str | Path, *, compress: bool = True, overwrite: bool = False,
                  compression_level: int | None = None) -> None:
         self.path = Path(path)
+        if self.path.exists() and not self.path.is_dir():
+            raise BagError(f'cannot write the bag {self.path}: it is a file, not a folder')
         if self.path.exists():
             if not overwrite:
                 raise BagError(f'output bag exists already: {self.path} (use --force)')

@@ -11,6 +11,7 @@ prints one line and exits non-zero; never a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import os
 import sys
@@ -116,13 +117,12 @@ def _cmd_process(args: argparse.Namespace) -> int:
 
 def _warn_unmatched(config: GraphConfig, params_file: str | None) -> None:
     """Say at once which entries of the parameter file address no node of the graph."""
-    from depth_nodes.ros.graph import load_params_file, unmatched_entries
+    from depth_nodes.ros.graph import load_params_file, unmatched_entries, unmatched_warning
 
     if params_file:
         for key in unmatched_entries(config, load_params_file(params_file)):
-            print(f'depth-nodes: warning: parameter file entry {key!r} matches no node of '
-                  f'the graph ({", ".join(n.fully_qualified_name for n in config.nodes)}); '
-                  'it is ignored', file=sys.stderr)
+            print(f'depth-nodes process: warning: {unmatched_warning(config, key)}',
+                  file=sys.stderr)
 
 
 def _renamed(config: GraphConfig, args: argparse.Namespace) -> GraphConfig:
@@ -239,6 +239,9 @@ def _cmd_param(args: argparse.Namespace) -> int:
     if args.verb == 'list' and args.node is None:
         for node, names in param.list_all_parameters(timeout=args.timeout).items():
             print(f'{node}:')
+            if names is None:
+                print(f'  (no answer within {args.timeout:g} s)')
+                continue
             print('\n'.join(f'  {name}' for name in names))
     elif args.verb == 'list':
         print('\n'.join(param.list_parameters(args.node, timeout=args.timeout)))
@@ -290,6 +293,17 @@ def _cmd_diag(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
+    if args.previews and not Path(args.previews).exists():  # made here: gone on failure
+        try:
+            return _eval(args)
+        except DepthNodesError:
+            with contextlib.suppress(OSError):
+                Path(args.previews).rmdir()  # only when it is still empty
+            raise
+    return _eval(args)
+
+
+def _eval(args: argparse.Namespace) -> int:
     from depth_nodes.tools.evaluate import evaluate_bag, has_ground_truth
     from depth_nodes.tools.previews import bag_previews
 
@@ -538,7 +552,8 @@ def build_parser() -> argparse.ArgumentParser:
         if verb == 'set':
             cmd.add_argument('value', help='YAML value: 5, 5.0, true, [1, 2], text')
         cmd.add_argument('--timeout', type=float, default=10.0, metavar='SECONDS',
-                         help='wait this long for the node (default 10)')
+                         help='wait up to this long for the node (default 10; a node missing '
+                         'from a graph whose node list has settled is reported sooner)')
     par.set_defaults(func=_cmd_param)
 
     nod = sub.add_parser('node', help='the nodes of the running graph (like ros2 node)')

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from depth_nodes.errors import BagError, ConfigError, DepthNodesError
+from depth_nodes.ros.graph import checked_namespace
 from depth_nodes.ros.image import array_to_image, image_to_array, to_rgb8
 from depth_nodes.ros.transport import compress_image
 from depth_nodes.tools.bagio import BagReader, BagWriter, remove_bag
@@ -51,8 +52,12 @@ class ConvertOptions:
         if self.bayer not in (None, *BAYER_ORDERS):
             raise ConfigError(f'--bayer must be one of {", ".join(BAYER_ORDERS)}, got '
                               f'{self.bayer!r}')
-        if self.namespace is not None and not self.namespace.startswith('/'):
-            raise ConfigError(f'--namespace {self.namespace!r} must start with /')
+        if self.namespace is not None:
+            checked_namespace(self.namespace)
+        if self.codec is None and self.bayer is None and self.namespace is None:
+            raise ConfigError('nothing to convert: give --compress, --bayer or --namespace')
+        if self.quality != 90 and self.codec != 'jpeg':
+            raise ConfigError('--quality applies to --compress jpeg only')
         return self
 
 
@@ -117,6 +122,8 @@ def convert_bag(in_bag: str | Path, out_bag: str | Path, options: ConvertOptions
             raise BagError(f'{in_bag} has no camera images to convert (no sensor_msgs/Image '
                            'topic ending in /image_raw)')
         writer = BagWriter(out_bag, overwrite=overwrite)
+        for key, value in reader.custom_data.items():  # e.g. the simulator's settings
+            writer.set_custom_data(key, value)
         try:
             with writer:
                 for bag_msg in reader.messages():

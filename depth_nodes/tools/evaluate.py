@@ -47,10 +47,10 @@ from depth_nodes.core.rectify import rectify_image
 from depth_nodes.errors import BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.image import image_to_array, to_gray, to_uint8
-from depth_nodes.ros.transport import gray_image
+from depth_nodes.ros.image import image_to_array, to_rgb8, to_uint8
+from depth_nodes.ros.transport import gray_image, image_pixels
 from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.previews import MapView, previews_folder, write_views
+from depth_nodes.tools.previews import MapView, depth_metres, previews_folder, write_views
 
 DISPARITY = 'stereo_msgs/msg/DisparityImage'
 IMAGE = 'sensor_msgs/msg/Image'
@@ -195,7 +195,8 @@ def _rectified_pair(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> tup
     else:
         pair = []
         for side in ('left', 'right'):
-            raw = data.get(f'{ns}/{side}/image_raw', {}).get(stamp)
+            raw = (data.get(f'{ns}/{side}/image_raw', {}).get(stamp)
+                   or data.get(f'{ns}/{side}/image_raw/compressed', {}).get(stamp))
             info = data.get(f'{ns}/{side}/camera_info', {}).get(stamp)
             if raw is None or info is None:
                 raise BagError(f'no rectified or raw {side} image with camera_info at stamp '
@@ -299,12 +300,13 @@ def evaluate_bag(
                         if ty == IMAGE and t.endswith('/depth'))
         wanted = [gt_topic, *estimates, *confidences, *depths]
         extra = [f'{ns}/left/occlusion_gt', f'{ns}/left/image_rect', f'{ns}/right/image_rect',
+                 f'{ns}/left/image_rect_color',
                  f'{ns}/left/image_rect_gt', f'{ns}/right/image_rect_gt']
         if previews is not None or depths:
             extra.append(f'{ns}/left/depth_gt')
         if baselines:
             extra += [f'{ns}/{s}/{k}' for s in ('left', 'right')
-                      for k in ('image_raw', 'camera_info')]
+                      for k in ('image_raw', 'image_raw/compressed', 'camera_info')]
         wanted += [t for t in extra if t in reader.topics]
         data = _load(reader, wanted)
 
@@ -347,7 +349,7 @@ def evaluate_bag(
                        else np.full(gt.shape, np.nan, np.float32))
             acc[topic].add(est, gt, nonocc, conf, raw)
             if conf is not None and conf_topic is not None:
-                maps[f'{conf_topic}_confidence'] = conf
+                maps[conf_topic] = conf
             if est is not None:
                 frame_out[topic] = est
         if baselines:
@@ -360,11 +362,13 @@ def evaluate_bag(
             for settings in SGBM_GRID:
                 est = opencv_sgbm(left, right, settings, disparity_range=drange)
                 grid_acc[settings.label].add(est, gt, nonocc)
-        if previews is not None and len(gt_frames) and stamp in sorted(gt_frames)[
-                :preview_frames]:
-            rect = data.get(f'{ns}/left/image_rect', {}).get(stamp)
+        if previews is not None and stamp in sorted(gt_frames)[:preview_frames]:
+            for topic in depths:  # the estimated depth too, in metres
+                msg = data[topic].get(stamp)
+                if msg is not None:
+                    maps[topic] = depth_metres(image_to_array(msg), msg.encoding)
             _write_previews(Path(previews), stamp, frame_out, maps, threshold,
-                            image_to_array(rect) if rect is not None else None)
+                            _left_colour(data, ns, stamp))
     report.nonocc_fraction = visible_count / max(gt_count, 1)
     report.rows = [a.scores(m, threshold) for m, a in acc.items()]
     report.grid = [a.scores(m, threshold) for m, a in grid_acc.items()]
@@ -409,8 +413,8 @@ def _rectification_mad(data: dict[str, dict[int, Any]], ns: str) -> dict[str, fl
             f'{ns}/{side}/image_rect_gt', {})
         diffs = []
         for stamp in sorted(set(rect) & set(truth)):
-            a = to_gray(image_to_array(rect[stamp]), rect[stamp].encoding).astype(np.float32)
-            b = to_gray(image_to_array(truth[stamp]), truth[stamp].encoding).astype(np.float32)
+            a = gray_image(rect[stamp]).astype(np.float32)
+            b = gray_image(truth[stamp]).astype(np.float32)
             if a.shape == b.shape:
                 m = RECT_MARGIN
                 diffs.append(float(np.abs(a - b)[m:-m, m:-m].mean()))
@@ -453,10 +457,23 @@ def _write_previews(folder: Path, stamp: int, frame: dict[str, Array], maps: dic
         views.append(MapView(name, disp, 0.0, top, kind='disparity'))
         if name != 'ground truth':
             views.append(MapView(name, np.abs(disp - gt), 0.0, 2 * threshold,
-                                 cv2.COLORMAP_INFERNO, kind='error'))
+                                 cv2.COLORMAP_INFERNO, kind='error', missing=(160, 160, 160)))
+    depth_top = float(np.nanmax(maps['depth_gt'])) if 'depth_gt' in maps else None
     for name, values in maps.items():
-        if name == 'depth_gt':
-            views.append(MapView('depth_gt', values, 0.0, float(np.nanmax(values)), unit='m'))
+        if name == 'depth_gt' or name.endswith('/depth'):
+            top = depth_top if depth_top is not None else float(np.nanmax(values))
+            views.append(MapView(name, values, 0.0, top, unit='m', kind='depth'))
         else:
-            views.append(MapView(name, values, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit=''))
+            views.append(MapView(name, values, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit='',
+                                 kind='confidence'))
     write_views(folder, stamp, image, views)
+
+
+def _left_colour(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> Array | None:
+    """The left image of a frame as BGR for the previews: the colour one when the bag has
+    it, else the mono rectified one."""
+    for topic in (f'{ns}/left/image_rect_color', f'{ns}/left/image_rect'):
+        msg = data.get(topic, {}).get(stamp)
+        if msg is not None:
+            return cv2.cvtColor(to_rgb8(*image_pixels(msg)), cv2.COLOR_RGB2BGR)
+    return None

@@ -40,6 +40,8 @@ DISCOVERY_S = 2.0
 STABLE_S = 2.0
 #: Elements of an array ``echo`` prints before it elides the rest.
 MAX_ARRAY = 16
+#: Seconds of diagnostics the ``diag`` view's rate is taken over.
+RATE_WINDOW_S = 10.0
 
 
 @contextmanager
@@ -66,7 +68,7 @@ def _spin_for(executor: SingleThreadedExecutor, seconds: float) -> None:
         executor.spin_once(timeout_sec=min(0.1, max(0.0, deadline - time.monotonic())))
 
 
-def _unnamed_endpoints(node: Node) -> bool:
+def unnamed_endpoints(node: Node) -> bool:
     """True while some publisher's node is not known yet (rmw says _NODE_NAME_UNKNOWN_
     until the owner's participant has announced its nodes)."""
     for topic, _ in node.get_topic_names_and_types():
@@ -90,7 +92,7 @@ def settle(node: Node, executor: SingleThreadedExecutor, wait: float,
         now = visible_nodes(node)
         if now != seen:
             seen, stable_since = now, time.monotonic()
-        elif time.monotonic() - stable_since >= STABLE_S and not _unnamed_endpoints(node):
+        elif time.monotonic() - stable_since >= STABLE_S and not unnamed_endpoints(node):
             return
 
 
@@ -342,9 +344,18 @@ def _level(level: Any) -> str:
     return _LEVELS.get(code, '?')
 
 
-def diag_table(statuses: dict[str, Any]) -> str:
-    """The nodes' latest DiagnosticStatus as a table: level, rates, processing time,
-    drops by reason."""
+def _output_total(status: Any) -> int | None:
+    totals = [int(kv.value) for kv in status.values
+              if kv.key.startswith('output ') and kv.key.endswith(' total')]
+    return max(totals) if totals else None
+
+
+def diag_table(statuses: dict[str, Any],
+               history: dict[str, deque[tuple[float, int]]] | None = None) -> str:
+    """The nodes' latest DiagnosticStatus as a table: level, rate, processing time, drops
+    by reason. With ``history`` (per node, when each status came and its largest output
+    total) the rate is the frames published over the last :data:`RATE_WINDOW_S` s, which
+    does not swing with a one-second period's jitter as the node's own rate does."""
     if not statuses:
         return 'no diagnostics yet (nodes publish /diagnostics every diagnostics_period s)'
     lines = [f'{"node":<30} {"level":<5} {"frames/s":>8} {"ms/frame":>9} {"dropped":>7}  '
@@ -358,6 +369,9 @@ def diag_table(statuses: dict[str, Any]) -> str:
         reasons = ', '.join(f'{k[len("drops "):]} {v}' for k, v in sorted(values.items())
                             if k.startswith('drops ') and k != 'drops total')
         rate = f'{max(rates):.1f}' if rates else '-'
+        seen = (history or {}).get(name)
+        if seen and len(seen) > 1 and seen[-1][0] > seen[0][0]:
+            rate = f'{(seen[-1][1] - seen[0][1]) / (seen[-1][0] - seen[0][0]):.1f}'
         ms_text = '-' if ms == 'nan' else f'{float(ms):.1f}'
         lines.append(f'{name:<30} {_level(status.level):<5} {rate:>8} {ms_text:>9} '
                      f'{values.get("drops total", "0"):>7}  {reasons or status.message}')
@@ -374,21 +388,32 @@ def diagnostics_view(*, period: float = 2.0, once: bool = False, timeout: float 
     if not period > 0:
         raise ConfigError(f'--period must be positive, got {period:g}')
     statuses: dict[str, Any] = {}
+    history: dict[str, deque[tuple[float, int]]] = {}
 
     def on_array(array: Any) -> None:
+        now = time.monotonic()
         for status in array.status:
             statuses[status.name] = status
+            total = _output_total(status)
+            if total is not None:
+                seen = history.setdefault(status.name, deque())
+                seen.append((now, total))
+                while len(seen) > 2 and now - seen[1][0] >= RATE_WINDOW_S:
+                    seen.popleft()
 
     with graph_node('diag') as (node, executor):
         node.create_subscription(DiagnosticArray, '/diagnostics', on_array, 50)
         start = time.monotonic()
         while not stop_requested():
             _spin_for(executor, period)
-            if once and not statuses and time.monotonic() - start < timeout:
-                continue
+            if once and not statuses:
+                if time.monotonic() - start < timeout:
+                    continue
+                raise ConfigError(f'no diagnostics within {timeout:g} s: is the graph '
+                                  'running, on this ROS_DOMAIN_ID?')
             if clear is not None:
                 clear()
-            out.write(diag_table(statuses) + '\n')
+            out.write(diag_table(statuses, history) + '\n')
             out.flush()
             if once:
                 break

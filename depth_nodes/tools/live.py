@@ -33,6 +33,7 @@ from rclpy.qos import (
 from rclpy.signals import SignalHandlerOptions
 
 from depth_nodes.errors import BagError, ConfigError
+from depth_nodes.ros.graph import checked_namespace
 from depth_nodes.tools.bagio import BagReader, BagWriter, message_class
 from depth_nodes.tools.signals import STOP, stop_requested
 
@@ -97,6 +98,7 @@ class PlayOptions:
         for source, target in (self.remap or {}).items():
             if not source.startswith('/') or not target.startswith('/'):
                 raise ConfigError(f'--remap {source}:={target}: both names must be absolute')
+            checked_namespace(target, '--remap target')
 
 
 def play_bag(path: str | Path, options: PlayOptions | None = None,

@@ -188,7 +188,12 @@ class ParameterClient:
         Raises:
             ConfigError: They did not appear; names the nodes that are visible.
         """
-        from depth_nodes.tools.introspect import DISCOVERY_S, STABLE_S, visible_nodes
+        from depth_nodes.tools.introspect import (
+            DISCOVERY_S,
+            STABLE_S,
+            unnamed_endpoints,
+            visible_nodes,
+        )
 
         start = time.monotonic()
         deadline = start + self._timeout
@@ -199,7 +204,8 @@ class ParameterClient:
             if visible != seen:
                 seen, stable_since = visible, now
             settled = (now - start >= DISCOVERY_S and now - stable_since >= STABLE_S
-                       and visible and self.target not in visible)
+                       and visible and self.target not in visible
+                       and not unnamed_endpoints(self._node))
             if now >= deadline or settled:
                 shown = f'; visible nodes: {", ".join(visible)}' if visible else ''
                 close = difflib.get_close_matches(self.target, visible, n=1)
@@ -320,17 +326,19 @@ def dump_parameters(node: str, *, timeout: float = DEFAULT_TIMEOUT) -> str:
         return dump_yaml(client.target, python)
 
 
-def list_all_parameters(*, timeout: float = DEFAULT_TIMEOUT) -> dict[str, list[str]]:
-    """Every visible node's parameter names (``ros2 param list`` without a node)."""
+def list_all_parameters(*, timeout: float = DEFAULT_TIMEOUT) -> dict[str, list[str] | None]:
+    """Every visible node's parameter names (``ros2 param list`` without a node); None for
+    a node that did not answer within ``timeout`` s (no parameter services, or gone)."""
     from depth_nodes.tools.introspect import DISCOVERY_S, graph_node, settle, visible_nodes
 
+    out: dict[str, list[str] | None] = {}
     with graph_node('param_list') as (node, executor):
         settle(node, executor, DISCOVERY_S)
-        names = visible_nodes(node)
-    out: dict[str, list[str]] = {}
-    for name in names:  # a node seen in the graph answers at once, or has no services
-        try:
-            out[name] = list_parameters(name, timeout=min(timeout, 3.0))
-        except ConfigError:  # a node without parameter services, or gone meanwhile
-            continue
+        for name in visible_nodes(node):
+            client = ParameterClient(node, executor, name, timeout)
+            try:
+                client.wait(('list',))
+                out[name] = client.names()
+            except ConfigError:
+                out[name] = None
     return out

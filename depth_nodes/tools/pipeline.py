@@ -44,6 +44,7 @@ from depth_nodes.ros.graph import (
     load_graph_config,
     load_params_file,
     unmatched_entries,
+    unmatched_warning,
     with_transport,
 )
 
@@ -122,8 +123,8 @@ def run_pipeline(config_path: str | Path | GraphConfig, *,
     config = compose_remappings(config, user_remappings(ros_args or []))
     params = load_params_file(params_file) if params_file else {}
     for key in unmatched_entries(config, params):
-        print(f'depth-nodes pipeline: warning: parameter file entry {key!r} matches no node '
-              'of the graph; it is ignored', file=sys.stderr)
+        print(f'depth-nodes pipeline: warning: {unmatched_warning(config, key)}',
+              file=sys.stderr)
     if threads is not None and not 1 <= threads <= MAX_EXECUTOR_THREADS:
         raise ConfigError(f'--threads must be in 1..{MAX_EXECUTOR_THREADS}, got {threads}')
     context = Context()

@@ -32,6 +32,9 @@ IMAGE = 'sensor_msgs/msg/Image'
 COMPRESSED = 'sensor_msgs/msg/CompressedImage'
 #: Width of the colour bar, px.
 BAR_WIDTH = 70
+#: The left image a map is drawn beside, the first of these the bag has.
+LEFT_IMAGES = ('/left/image_rect_color', '/left/image_rect', '/left/image_raw',
+               '/left/image_raw/compressed')
 
 
 @dataclass(frozen=True)
@@ -46,15 +49,19 @@ class MapView:
     unit: str = 'px'
     #: What the map is (disparity, depth, error, ...), shown after the name.
     kind: str = ''
+    #: BGR of a pixel without a value: black, but grey on an error map, whose colour for
+    #: no error is black.
+    missing: tuple[int, int, int] = (0, 0, 0)
 
 
-def colour(values: Array, low: float, high: float, colormap: int) -> Array:
-    """``values`` in [low, high] through ``colormap``; non-finite pixels black."""
+def colour(values: Array, low: float, high: float, colormap: int,
+           missing: tuple[int, int, int] = (0, 0, 0)) -> Array:
+    """``values`` in [low, high] through ``colormap``; non-finite pixels ``missing``."""
     span = max(high - low, 1e-9)
     finite = np.isfinite(values)
     scaled = np.clip((np.where(finite, values, low) - low) * (255.0 / span), 0, 255)
     img = cv2.applyColorMap(scaled.astype(np.uint8), colormap)
-    img[~finite] = 0
+    img[~finite] = missing
     return np.asarray(img)
 
 
@@ -97,9 +104,12 @@ def composite(image: Array | None, view: MapView) -> Array:
     map's name above."""
     h, w = view.values.shape[:2]
     body = np.hstack([_bgr(image, (h, w)), colour(view.values, view.low, view.high,
-                                                  view.colormap), colour_bar(h, view)])
+                                                  view.colormap, view.missing),
+                      colour_bar(h, view)])
     title = np.full((22, body.shape[1], 3), 255, np.uint8)
     text = f'{view.name} ({view.kind})' if view.kind else view.name
+    if view.missing != (0, 0, 0):
+        text += ', grey: no value'
     cv2.putText(title, text, (4, 16), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1, cv2.LINE_AA)
     return np.vstack([title, body])
 
@@ -132,6 +142,15 @@ def previews_folder(folder: Path) -> None:
         raise ConfigError(f'cannot write previews to {folder}: {exc.strerror}') from None
 
 
+def depth_metres(pixels: Array, encoding: str) -> Array:
+    """A depth image (REP 118: 32FC1 metres, or 16UC1 millimetres with 0 unknown) as
+    float32 metres with NaN unknown."""
+    if encoding == '16UC1':
+        return np.where(pixels > 0, pixels.astype(np.float32) / 1000.0, np.nan).astype(
+            np.float32)
+    return np.asarray(pixels, np.float32)
+
+
 def _robust_range(values: Array) -> tuple[float, float]:
     finite = values[np.isfinite(values)]
     if not finite.size:
@@ -150,8 +169,7 @@ def _views_of(topic: str, msg: Any) -> MapView | None:
     if topic.endswith('/confidence') and encoding == '32FC1':
         return MapView(topic, pixels, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit='')
     if topic.endswith(('/depth', '/depth_gt')) and encoding in ('32FC1', '16UC1'):
-        metres = pixels.astype(np.float32) / 1000.0 if encoding == '16UC1' else pixels
-        metres = np.where(metres > 0, metres, np.nan) if encoding == '16UC1' else metres
+        metres = depth_metres(pixels, encoding)
         finite = metres[np.isfinite(metres)]
         high = float(np.percentile(finite, 99)) if finite.size else 1.0
         return MapView(topic, metres, 0.0, max(high, 1e-3), unit='m', kind='depth')
@@ -172,13 +190,14 @@ def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
     out = Path(folder)
     previews_folder(out)
     with BagReader(path) as reader:
-        maps = sorted(t for t, kind in reader.topics.items() if kind == DISPARITY or (
+        # left-view maps (a right-view disparity would not line up with the left image)
+        maps = sorted(t for t, kind in reader.topics.items() if (
+            kind == DISPARITY and not t.endswith('_right')) or (
             kind == IMAGE and t.endswith(('/depth', '/confidence', '/depth_gt'))))
         if not maps:
             raise BagError(f'{path} holds no disparity, depth or confidence topic to draw')
         images = {t for t, kind in reader.topics.items() if kind in (IMAGE, COMPRESSED)
-                  and t.endswith(('/left/image_rect', '/left/image_rect_color',
-                                  '/left/image_raw', '/left/image_raw/compressed'))}
+                  and t.endswith(LEFT_IMAGES)}
         frames: dict[int, dict[str, Any]] = {}
         for bag_msg in reader.messages([*maps, *images]):
             stamp = header_stamp(bag_msg.data)  # read before deserialising the pixels
@@ -214,9 +233,8 @@ def header_stamp(cdr: bytes) -> int:
 def _left_image(frame: dict[str, Any], topic: str) -> Array | None:
     """The left camera image of ``topic``'s namespace in this frame, if the bag has one."""
     ns = topic.rsplit('/', 1)[0]
-    for suffix in ('left/image_rect_color', 'left/image_rect', 'left/image_raw',
-                   'left/image_raw/compressed'):
-        msg = frame.get(f'{ns}/{suffix}')
+    for suffix in LEFT_IMAGES:
+        msg = frame.get(f'{ns}{suffix}')
         if msg is not None:
             try:
                 return cv2.cvtColor(to_rgb8(*image_pixels(msg)), cv2.COLOR_RGB2BGR)

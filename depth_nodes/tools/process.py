@@ -23,6 +23,8 @@ from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.graph import (
     GraphConfig,
     camera_readers,
+    checked_name,
+    checked_namespace,
     create_nodes,
     load_graph_config,
     load_params_file,
@@ -34,6 +36,7 @@ from depth_nodes.tools.bagio import BagReader, BagWriter, message_type_name, rem
 from depth_nodes.tools.signals import stop_requested
 
 COMPRESSED = 'sensor_msgs/msg/CompressedImage'
+IMAGE_TYPE = 'sensor_msgs/msg/Image'
 #: The default graph: the stereo pipeline under /stereo.
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'stereo_pipeline.yaml'
 
@@ -69,7 +72,8 @@ class ProcessReport:
     unfed: list[str] = field(default_factory=list)
     #: Nodes switched to a compressed transport because the bag holds only that.
     transports: dict[str, str] = field(default_factory=dict)
-    #: Bag namespaces that hold the missing inputs (what --namespace would take).
+    #: What the command line could say instead, when the bag holds the missing inputs
+    #: elsewhere (e.g. ``--namespace /camera``).
     suggestions: list[str] = field(default_factory=list)
     #: Parameter-file entries that address no node (rclpy would ignore them).
     unmatched_params: list[str] = field(default_factory=list)
@@ -111,8 +115,7 @@ class ProcessReport:
             return 'the graph published nothing (see the drops above)'
         hint = ''
         if self.suggestions:
-            hint = f'; the bag has them under {" or ".join(self.suggestions)}: try ' + \
-                ' or '.join(f'--namespace {s}' for s in self.suggestions)
+            hint = '; try ' + ' or '.join(self.suggestions)
         return (f'the graph published nothing: its inputs {", ".join(self.unfed)} are not in '
                 f'the bag{hint}')
 
@@ -221,7 +224,10 @@ def process_bag(
             routes, produced = _routes(nodes)
         _check_types(reader, routes)
         report.unfed = sorted(set(routes) - set(reader.topics) - produced)
-        report.suggestions = _namespaces_holding(report.unfed, config, reader)
+        report.suggestions = _suggestions(report.unfed, config, reader,
+                                          {n.get_fully_qualified_name(): n.get_parameter(
+                                              'image_transport').value for n in nodes
+                                           if n.has_parameter('image_transport')})
         writer = BagWriter(out_bag, overwrite=overwrite)
         try:
             with writer:
@@ -271,8 +277,13 @@ def _compressed_inputs(nodes: list[Any], reader: BagReader, produced: set[str]
     return switch
 
 
-def _namespaces_holding(unfed: list[str], config: GraphConfig, reader: BagReader) -> list[str]:
-    """Namespaces of the bag under which the missing inputs exist (raw or compressed)."""
+def _suggestions(unfed: list[str], config: GraphConfig, reader: BagReader,
+                 transports: dict[str, str]) -> list[str]:
+    """Command-line options under which the bag would feed the graph: another namespace
+    that holds the missing inputs (raw or compressed), the compressed transport where a
+    raw one was asked for, or, for a camera whose sides are not left / right (a
+    RealSense's infra1 / infra2), the namespace, side and image names of its two
+    camera_infos."""
     root = root_namespace(config).rstrip('/')
     found: set[str] = set()
     for topic in unfed:
@@ -281,9 +292,56 @@ def _namespaces_holding(unfed: list[str], config: GraphConfig, reader: BagReader
         tail = topic[len(root):]
         for bag_topic in reader.topics:
             for suffix in ('', '/compressed'):
-                if bag_topic.endswith(tail + suffix) and bag_topic != topic:
+                if bag_topic.endswith(tail + suffix):
                     found.add(bag_topic[:len(bag_topic) - len(tail + suffix)] or '/')
-    return sorted(found)
+    out = []
+    for namespace in sorted(found):
+        if namespace.rstrip('/') == root:  # here already: only as compressed images
+            out.append('--image-transport compressed (the bag holds the images as '
+                       '<topic>/compressed)' if any(t == 'raw' for t in transports.values())
+                       else '')
+            continue
+        try:
+            checked_namespace(namespace)
+        except ConfigError:
+            continue  # a name the options could not take
+        out.append(f'--namespace {namespace}')
+    if not found:
+        out += _camera_pairs(reader)
+    return [s for s in out if s]
+
+
+def _camera_pairs(reader: BagReader) -> list[str]:
+    """``--namespace P --left A --right B --image I`` for two cameras P/A and P/B that
+    each have a camera_info and an image (raw or compressed)."""
+    parents: dict[str, list[str]] = {}
+    for topic in reader.topics:
+        if topic.endswith('/camera_info') and topic.count('/') >= 3:
+            camera = topic[:-len('/camera_info')]
+            parent, _, side = camera.rpartition('/')
+            parents.setdefault(parent, []).append(side)
+    out = []
+    for parent, sides in sorted(parents.items()):
+        if len(sides) != 2:
+            continue
+        left, right = sorted(sides, key=lambda s: ('left' not in s, s))
+        images = sorted(t[len(f'{parent}/{left}/'):].removesuffix('/compressed')
+                        for t, kind in reader.topics.items()
+                        if t.startswith(f'{parent}/{left}/') and kind in (
+                            IMAGE_TYPE, COMPRESSED))
+        if not images:
+            continue
+        # image_raw if there is one, else a camera image (not a ground truth render)
+        image = min(images, key=lambda n: (n != 'image_raw', n.endswith('_gt'),
+                                           not n.startswith('image'), n))
+        try:
+            checked_namespace(parent)
+            for name in (left, right, image):
+                checked_name(name, 'name')
+        except ConfigError:
+            continue
+        out.append(f'--namespace {parent} --left {left} --right {right} --image {image}')
+    return out
 
 
 def _check_types(reader: BagReader, routes: dict[str, list[Any]]) -> None:
