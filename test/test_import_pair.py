@@ -138,8 +138,9 @@ def _mistakes(tmp_path: Path) -> list[tuple[list[str], str]]:
          'calibrated for 640x480, but the images are 100x60'),
         ([str(left), str(right), out, '--frames', '0'], 'frames must be at least 1'),
         ([str(left), str(right), out, '--namespace', 'stereo'], 'namespace must start with /'),
-        ([str(left), str(right), str(left)], 'l.png (use --force)'),
-        ([str(left), str(right), str(left), '--force'], 'l.png: not a bag folder'),
+        ([str(left), str(right), str(left)], 'l.png: it is a file, not a folder'),
+        ([str(left), str(right), str(left), '--force'], 'l.png: it is a file, not a folder'),
+        ([str(left), str(right), str(tmp_path), '--force'], f'{tmp_path}: not a bag folder'),
         ([str(left), str(right), str(left / 'bag')], 'l.png is a file, not a folder'),
     ]
 

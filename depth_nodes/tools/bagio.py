@@ -193,8 +193,7 @@ class BagWriter:
         if self.path.exists():
             if not overwrite:
                 raise BagError(f'output bag exists already: {self.path} (use --force)')
-            if not self.path.is_dir() or (not (self.path / 'metadata.yaml').is_file()
-                                          and any(self.path.iterdir())):
+            if not (self.path / 'metadata.yaml').is_file() and any(self.path.iterdir()):
                 raise BagError(f'refusing to overwrite {self.path}: not a bag folder')
             _remove_tree(self.path)
         existing = next((a for a in self.path.parents if a.exists()), None)
