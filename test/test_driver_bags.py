@@ -209,7 +209,9 @@ def test_the_live_pipeline_takes_a_driver_bag_with_one_option(tmp_path: Path) ->
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
         player = subprocess.Popen(
             [sys.executable, '-m', 'depth_nodes.tools.cli', 'play', str(bag), '--loop',
-             '--wait-for-subscribers', '120', '--delay', '1'],
+             '--wait-for-subscribers', '120', '--delay', '1', '--topics',
+             *(f'/camera/{side}/{name}' for side in ('left', 'right')
+               for name in ('image_raw/compressed', 'camera_info'))],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
         out, err = echo.communicate(timeout=300)
         player.send_signal(signal.SIGINT)

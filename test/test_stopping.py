@@ -199,8 +199,12 @@ def test_stopping_while_frames_flow_is_quiet(tmp_path: Path, ros_env: dict[str, 
     before = _segments()
     log, play_log = tmp_path / 'graph.log', tmp_path / 'play.log'
     proc = _start(command, ros_env, log, background=True)
+    # the topics the graph reads (the bag's ground truth has no subscriber to wait for)
+    sides = ('left',) if ready_topic.startswith('/stereo/left/') else ('left', 'right')
+    cameras = [f'/stereo/{side}/{name}' for side in sides
+               for name in ('image_raw', 'camera_info')]
     player = _start([*CLI, 'play', str(REPO / 'bags' / 'stereo_vga'), '--loop',
-                     '--wait-for-subscribers', '60'], ros_env, play_log)
+                     '--wait-for-subscribers', '60', '--topics', *cameras], ros_env, play_log)
     try:
         echo = subprocess.run([*CLI, 'topic', 'echo', ready_topic, '--count', '3',
                                '--timeout', '120'], env=ros_env, capture_output=True,

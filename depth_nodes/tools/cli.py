@@ -523,7 +523,9 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument('--clock', action='store_true', help='publish /clock with bag time')
     play.add_argument('--topics', nargs='+', help='only these topics')
     play.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='SECONDS',
-                      help='wait up to SECONDS for every topic to have a subscriber')
+                      help='wait up to SECONDS for every topic played to have a '
+                      'subscriber (with --topics, leave out what nothing reads, such as a '
+                      "bundled bag's ground truth)")
     play.add_argument('--delay', type=float, default=0.0, metavar='SECONDS',
                       help='then wait SECONDS more before the first message')
     play.add_argument('--linger', type=float, default=1.0, metavar='SECONDS',
