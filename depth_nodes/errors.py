@@ -15,6 +15,12 @@ class DepthNodesError(Exception):
     """Base class of every error depth_nodes raises on purpose."""
 
 
+class ArgumentError(DepthNodesError, ValueError):
+    """An argument a function cannot take: a wrong shape, type or value (numpy arrays and
+    settings handed to ``depth_nodes.core``, options of a command). A ``ValueError`` too, so
+    code that catches that keeps working."""
+
+
 class MessageError(DepthNodesError):
     """A ROS message whose fields disagree with each other (sizes, step, data length)."""
 

@@ -13,6 +13,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from depth_nodes.errors import ArgumentError
+
 
 @dataclass(frozen=True)
 class SgbmSettings:
@@ -141,7 +143,7 @@ def opencv_sgbm(
         (H, W) float32 disparity in pixels, NaN where OpenCV marks the pixel invalid.
 
     Raises:
-        ValueError: Shapes or dtypes differ, or the range is not a multiple of 16.
+        ArgumentError: Shapes or dtypes differ, or the range is not a multiple of 16.
     """
     _check_pair(left, right, disparity_range)
     matcher = cv2.StereoSGBM.create(
@@ -169,13 +171,13 @@ def _to_pixels(raw: NDArray[Any], min_disparity: int) -> NDArray[np.float32]:
 
 def _check_pair(left: NDArray[np.uint8], right: NDArray[np.uint8], disparity_range: int) -> None:
     if left.ndim != 2 or left.shape != right.shape:
-        raise ValueError(f'left {left.shape} and right {right.shape} must be 2-D and of one '
-                         'shape')
+        raise ArgumentError(f'left {left.shape} and right {right.shape} must be 2-D and of one '
+                            'shape')
     if left.dtype != np.uint8 or right.dtype != np.uint8:
-        raise ValueError(f'images must be uint8, got {left.dtype} and {right.dtype}')
+        raise ArgumentError(f'images must be uint8, got {left.dtype} and {right.dtype}')
     if disparity_range <= 0 or disparity_range % 16:
-        raise ValueError(f'disparity_range must be a positive multiple of 16, '
-                         f'got {disparity_range}')
+        raise ArgumentError(f'disparity_range must be a positive multiple of 16, '
+                            f'got {disparity_range}')
 
 
 def opencv_bm(
@@ -193,14 +195,14 @@ def opencv_bm(
         (H, W) float32 disparity in pixels, NaN where OpenCV marks the pixel invalid.
 
     Raises:
-        ValueError: Shapes or dtypes differ, the range is not a multiple of 16, or a window
+        ArgumentError: Shapes or dtypes differ, the range is not a multiple of 16, or a window
             is even or outside 5..255.
     """
     _check_pair(left, right, disparity_range)
     for name in ('correlation_window_size', 'prefilter_size'):
         value = getattr(settings, name)
         if value % 2 == 0 or not 5 <= value <= 255:
-            raise ValueError(f'{name} must be odd, 5..255 for block matching, got {value}')
+            raise ArgumentError(f'{name} must be odd, 5..255 for block matching, got {value}')
     matcher = cv2.StereoBM.create(numDisparities=int(disparity_range),
                                   blockSize=settings.correlation_window_size)
     matcher.setMinDisparity(int(min_disparity))

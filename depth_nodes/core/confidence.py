@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core._validate import float_map, non_negative
+from depth_nodes.errors import ArgumentError
 
 __all__ = ['DEFAULT_TERMS', 'PLAIN_TERMS', 'ConfidenceTerms', 'confidence_map']
 
@@ -66,7 +67,7 @@ PLAIN_TERMS = ConfidenceTerms(support_window=1, smoothness=0.0, outside_scale=0.
 def _odd_window(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or (
             value < 1 or value % 2 == 0):
-        raise ValueError(f'{name} must be an odd int >= 1, got {value!r}')
+        raise ArgumentError(f'{name} must be an odd int >= 1, got {value!r}')
     return int(value)
 
 
@@ -120,21 +121,21 @@ def confidence_map(cost_ratio: Any, difference: Any, valid: Any, *, window: int 
         (H, W) float32 confidence, 0 where neither valid nor filled.
 
     Raises:
-        ValueError: Bad shapes or dtypes, even windows, non-positive ``max_diff``.
+        ArgumentError: Bad shapes or dtypes, even windows, non-positive ``max_diff``.
     """
     ratio = float_map('cost_ratio', cost_ratio)
     diff = float_map('difference', difference, ratio.shape)
     keep = np.asarray(valid)
     if keep.dtype != np.bool_ or keep.shape != ratio.shape:
-        raise ValueError(f'valid must be a bool array of shape {ratio.shape}')
+        raise ArgumentError(f'valid must be a bool array of shape {ratio.shape}')
     window = _odd_window('window', window)
     support_window = _odd_window('support_window', terms.support_window)
     scale = non_negative('max_diff', max_diff)
     if scale == 0:
-        raise ValueError('max_diff must be > 0 for the confidence')
+        raise ArgumentError('max_diff must be > 0 for the confidence')
     factor = non_negative('filled_confidence', filled_confidence)
     if factor > 1:
-        raise ValueError(f'filled_confidence must be in [0, 1], got {filled_confidence!r}')
+        raise ArgumentError(f'filled_confidence must be in [0, 1], got {filled_confidence!r}')
     smooth_scale = non_negative('smoothness', terms.smoothness)
     outside_scale = non_negative('outside_scale', terms.outside_scale)
     distinct = (1.0 - np.clip(np.nan_to_num(ratio, nan=1.0), 0.0, 1.0)).astype(np.float32)

@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 from depth_nodes.core._validate import float_map as _float_map
 from depth_nodes.core._validate import non_negative as _non_negative
 from depth_nodes.core.confidence import DEFAULT_TERMS, ConfidenceTerms, confidence_map
+from depth_nodes.errors import ArgumentError
 
 __all__ = [
     'FILL_MODES', 'INVALID', 'MISMATCH', 'OCCLUDED', 'OUTSIDE', 'SPECKLE', 'VALID',
@@ -172,7 +173,7 @@ def left_right_check(disparity: Any, disparity_right: Any, *,
         The difference and the label of every pixel.
 
     Raises:
-        ValueError: Not 2-D float arrays of one shape, or ``max_diff`` negative.
+        ArgumentError: Not 2-D float arrays of one shape, or ``max_diff`` negative.
     """
     left = _float_map('disparity', disparity)
     right = _float_map('disparity_right', disparity_right, left.shape)
@@ -200,11 +201,11 @@ def remove_speckles(disparity: Any, *, max_size: int, max_diff: float) -> Bool:
         (H, W) bool, True on the pixels of removed speckles.
 
     Raises:
-        ValueError: Bad shapes or negative sizes.
+        ArgumentError: Bad shapes or negative sizes.
     """
     disp = _float_map('disparity', disparity)
     if isinstance(max_size, bool) or not isinstance(max_size, (int, np.integer)) or max_size < 0:
-        raise ValueError(f'max_size must be an int >= 0, got {max_size!r}')
+        raise ArgumentError(f'max_size must be an int >= 0, got {max_size!r}')
     diff = _non_negative('max_diff', max_diff)
     finite = np.isfinite(disp)
     if max_size == 0 or not finite.any():
@@ -325,15 +326,15 @@ def fill_holes(disparity: Any, labels: Any, *, mode: str = 'labels',
         ``(filled_disparity, filled_mask)``; NaN where a hole has no kept neighbour.
 
     Raises:
-        ValueError: Bad shapes, dtypes or mode.
+        ArgumentError: Bad shapes, dtypes or mode.
     """
     disp = _float_map('disparity', disparity)
     lab = np.asarray(labels)
     if lab.shape != disp.shape or lab.dtype != np.uint8:
-        raise ValueError(f'labels must be a uint8 array of shape {disp.shape}, got '
-                         f'{lab.dtype} {lab.shape}')
+        raise ArgumentError(f'labels must be a uint8 array of shape {disp.shape}, got '
+                            f'{lab.dtype} {lab.shape}')
     if mode not in FILL_MODES:
-        raise ValueError(f'mode must be one of {", ".join(FILL_MODES)}, got {mode!r}')
+        raise ArgumentError(f'mode must be one of {", ".join(FILL_MODES)}, got {mode!r}')
     kept = (lab == VALID) if keep is None else np.asarray(keep, dtype=np.bool_)
     valid = np.ascontiguousarray(kept & np.isfinite(disp))
     out = np.empty(disp.shape, np.float32)
@@ -352,11 +353,11 @@ def median_filter(disparity: Any, size: int) -> F32:
     invalid neighbours keeps its own value.
 
     Raises:
-        ValueError: Bad shapes or a size other than 3 or 5 (OpenCV's float medians).
+        ArgumentError: Bad shapes or a size other than 3 or 5 (OpenCV's float medians).
     """
     disp = _float_map('disparity', disparity)
     if size not in (3, 5):
-        raise ValueError(f'size must be 3 or 5, got {size!r}')
+        raise ArgumentError(f'size must be 3 or 5, got {size!r}')
     invalid = ~np.isfinite(disp)
     finite = disp[~invalid]
     if not finite.size:
@@ -401,12 +402,12 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
         The checked disparity, its confidence and the per-pixel labels.
 
     Raises:
-        ValueError: Bad shapes, dtypes or settings (the message names the argument).
+        ArgumentError: Bad shapes, dtypes or settings (the message names the argument).
     """
     left = _float_map('disparity', disparity)
     _float_map('cost_ratio', cost_ratio, left.shape)
     if median_size not in (0, 3, 5):
-        raise ValueError(f'median_size must be 0, 3 or 5, got {median_size!r}')
+        raise ArgumentError(f'median_size must be 0, 3 or 5, got {median_size!r}')
     check = left_right_check(left, disparity_right, max_diff=disp12_max_diff)
     labels = check.labels.copy()
     keep = (labels == VALID) | ((labels == OUTSIDE) if keep_outside else False)

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.errors import InputFileError
+from depth_nodes.errors import ArgumentError, InputFileError
 
 __all__ = ['GT_FORMATS', 'nonoccluded_from_right', 'read_disparity_file', 'read_image',
            'read_pfm', 'write_pfm']
@@ -91,7 +91,7 @@ def write_pfm(path: str | Path, disparity: F32) -> None:
     """Write a (H, W) float map as a little-endian one-channel PFM."""
     arr = np.asarray(disparity, np.float32)
     if arr.ndim != 2:
-        raise ValueError(f'disparity must be (H, W), got shape {arr.shape}')
+        raise ArgumentError(f'disparity must be (H, W), got shape {arr.shape}')
     header = f'Pf\n{arr.shape[1]} {arr.shape[0]}\n-1.0\n'.encode('ascii')
     Path(path).write_bytes(header + arr[::-1].astype('<f4').tobytes())
 
@@ -107,12 +107,12 @@ def read_disparity_file(path: str | Path, *, fmt: str = 'auto',
 
     Raises:
         InputFileError: The file cannot be read, or does not fit the format.
-        ValueError: Unknown ``fmt`` or a non-positive ``scale``.
+        ArgumentError: Unknown ``fmt`` or a non-positive ``scale``.
     """
     if fmt not in GT_FORMATS:
-        raise ValueError(f'fmt must be one of {", ".join(GT_FORMATS)}, got {fmt!r}')
+        raise ArgumentError(f'fmt must be one of {", ".join(GT_FORMATS)}, got {fmt!r}')
     if scale is not None and not scale > 0:
-        raise ValueError(f'scale must be > 0, got {scale!r}')
+        raise ArgumentError(f'scale must be > 0, got {scale!r}')
     path = Path(path)
     if fmt == 'pfm' or (fmt == 'auto' and path.suffix.lower() == '.pfm'):
         disparity = read_pfm(path)
@@ -148,13 +148,13 @@ def nonoccluded_from_right(left_gt: F32, right_gt: F32, *, tolerance: float = 1.
     ground truth are OCCLUDED (nothing is known of them).
 
     Raises:
-        ValueError: The maps differ in shape or are not 2-D.
+        ArgumentError: The maps differ in shape or are not 2-D.
     """
     left = np.asarray(left_gt, np.float32)
     right = np.asarray(right_gt, np.float32)
     if left.ndim != 2 or left.shape != right.shape:
-        raise ValueError(f'left and right ground truth must be equal 2-D shapes, got '
-                         f'{left.shape} and {right.shape}')
+        raise ArgumentError(f'left and right ground truth must be equal 2-D shapes, got '
+                            f'{left.shape} and {right.shape}')
     h, w = left.shape
     known = np.isfinite(left)
     xs = np.broadcast_to(np.arange(w), (h, w))

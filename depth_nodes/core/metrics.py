@@ -28,6 +28,8 @@ import numpy as np
 import numpy.typing as npt
 from numpy.typing import NDArray
 
+from depth_nodes.errors import ArgumentError
+
 __all__ = [
     'ConfidenceScores',
     'DepthScores',
@@ -119,15 +121,15 @@ class ConfidenceScores:
 def _as_map(name: str, value: npt.ArrayLike) -> FloatArray:
     arr = np.asarray(value)
     if arr.ndim != 2:
-        raise ValueError(f'{name} must be a 2-D (H, W) array, got shape {arr.shape}')
+        raise ArgumentError(f'{name} must be a 2-D (H, W) array, got shape {arr.shape}')
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise ValueError(f'{name} must be a real numeric array, got dtype {arr.dtype}')
+        raise ArgumentError(f'{name} must be a real numeric array, got dtype {arr.dtype}')
     return arr.astype(np.float64, copy=False)
 
 
 def _check_same_shape(name_a: str, a: FloatArray, name_b: str, b: FloatArray) -> None:
     if a.shape != b.shape:
-        raise ValueError(
+        raise ArgumentError(
             f'{name_a} and {name_b} must have the same shape, got {a.shape} and {b.shape}'
         )
 
@@ -137,15 +139,15 @@ def _as_mask(valid_mask: npt.ArrayLike | None, shape: tuple[int, ...]) -> BoolAr
         return np.ones(shape, dtype=np.bool_)
     mask = np.asarray(valid_mask)
     if mask.dtype != np.bool_:
-        raise ValueError(f'valid_mask must be a boolean array, got dtype {mask.dtype}')
+        raise ArgumentError(f'valid_mask must be a boolean array, got dtype {mask.dtype}')
     if mask.shape != shape:
-        raise ValueError(f'valid_mask must have shape {shape}, got {mask.shape}')
+        raise ArgumentError(f'valid_mask must have shape {shape}, got {mask.shape}')
     return mask
 
 
 def _check_threshold(n: float) -> float:
     if isinstance(n, bool) or not isinstance(n, (int, float)) or not math.isfinite(n) or n < 0:
-        raise ValueError(f'n must be a finite number >= 0 (px), got {n!r}')
+        raise ArgumentError(f'n must be a finite number >= 0 (px), got {n!r}')
     return float(n)
 
 
@@ -176,7 +178,7 @@ def disparity_errors(
         no estimate, ``bad_dense`` is 1, ``density`` 0 and the sparse scores are NaN.
 
     Raises:
-        ValueError: If the arrays are not 2-D or their shapes differ, the mask is not
+        ArgumentError: If the arrays are not 2-D or their shapes differ, the mask is not
             boolean, or ``n`` is negative or not finite.
     """
     est = _as_map('estimate', estimate)
@@ -226,7 +228,7 @@ def depth_errors(
         density. NaN where a score has no pixels to average.
 
     Raises:
-        ValueError: If the arrays are not 2-D, their shapes differ or the mask is not boolean.
+        ArgumentError: If the arrays are not 2-D, their shapes differ or the mask is not boolean.
     """
     est = _as_map('estimate_m', estimate_m)
     gt = _as_map('truth_m', truth_m)
@@ -263,11 +265,11 @@ def optimal_auc(error_rate: float) -> float:
         The optimal area (0 for e = 0, 1 for e = 1).
 
     Raises:
-        ValueError: If ``error_rate`` is outside [0, 1].
+        ArgumentError: If ``error_rate`` is outside [0, 1].
     """
     e = float(error_rate)
     if not 0.0 <= e <= 1.0:
-        raise ValueError(f'error_rate must be in [0, 1], got {error_rate!r}')
+        raise ArgumentError(f'error_rate must be in [0, 1], got {error_rate!r}')
     if e == 1.0:
         return 1.0  # (1 - e) ln(1 - e) -> 0
     return e + (1.0 - e) * math.log1p(-e)
@@ -336,7 +338,7 @@ def sparsification_curve(
         confident pixels, with ties in confidence resolved by their expected value.
 
     Raises:
-        ValueError: If the arrays are not 2-D or their shapes differ, the mask is not
+        ArgumentError: If the arrays are not 2-D or their shapes differ, the mask is not
             boolean, or ``n`` is negative or not finite.
     """
     conf, bad, _ = _evaluated(confidence, error, valid_mask, n)
@@ -377,11 +379,11 @@ def sparsification_auc(
         The scores; all NaN (and ``n_pixels`` 0) when no pixel is evaluated.
 
     Raises:
-        ValueError: If the arrays are not 2-D or their shapes differ, the mask is not
+        ArgumentError: If the arrays are not 2-D or their shapes differ, the mask is not
             boolean, ``n`` is negative or not finite, or ``steps`` < 1.
     """
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 1):
-        raise ValueError(f'steps must be None or an int >= 1, got {steps!r}')
+        raise ArgumentError(f'steps must be None or an int >= 1, got {steps!r}')
     conf, bad, threshold = _evaluated(confidence, error, valid_mask, n)
     size = bad.size
     if size == 0:

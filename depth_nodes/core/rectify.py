@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.camera import EQUIDISTANT, CameraModel, validate_camera
+from depth_nodes.errors import ArgumentError
 
 Map = NDArray[Any]
 
@@ -39,14 +40,14 @@ def interpolation_flag(value: int | str) -> int:
     """The OpenCV flag for an interpolation given by name or by image_proc's integer code.
 
     Raises:
-        ValueError: Neither a known name nor a code in 0..4.
+        ArgumentError: Neither a known name nor a code in 0..4.
     """
     if isinstance(value, str) and value.lower() in INTERPOLATIONS:
         return INTERPOLATIONS[value.lower()]
     if isinstance(value, int) and not isinstance(value, bool) and value in INTERPOLATIONS.values():
         return value
     names = ', '.join(f'{name} ({flag})' for name, flag in INTERPOLATIONS.items())
-    raise ValueError(f'interpolation must be one of {names}; got {value!r}')
+    raise ArgumentError(f'interpolation must be one of {names}; got {value!r}')
 
 
 def calibration_key(model: CameraModel) -> tuple[Any, ...]:
@@ -149,12 +150,12 @@ class Rectifier:
 
         Raises:
             CalibrationError: The model is not usable.
-            ValueError: The image size differs from the calibration's, or a bad
+            ArgumentError: The image size differs from the calibration's, or a bad
                 interpolation.
         """
         map1, map2 = self.maps(model)
         if image.shape[:2] != map1.shape[:2]:
-            raise ValueError(
+            raise ArgumentError(
                 f'image is {image.shape[1]}x{image.shape[0]} but the camera_info describes '
                 f'{map1.shape[1]}x{map1.shape[0]} (after binning/ROI)'
             )

@@ -29,7 +29,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from depth_nodes.core._validate import check_float_map
 from depth_nodes.core.camera import StereoModel
+from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]
 
@@ -47,15 +49,6 @@ class Reprojection:
     points: F32
     depth: F32
     valid: NDArray[np.bool_]
-
-
-def _check_2d(name: str, arr: NDArray[Any], shape: tuple[int, ...] | None = None) -> None:
-    if arr.ndim != 2:
-        raise ValueError(f'{name} must be a (H, W) array, got shape {arr.shape}')
-    if shape is not None and arr.shape != shape:
-        raise ValueError(f'{name} must have the disparity shape {shape}, got {arr.shape}')
-    if not np.issubdtype(arr.dtype, np.floating):
-        raise ValueError(f'{name} must be a float array, got dtype {arr.dtype}')
 
 
 def reproject_disparity(
@@ -83,22 +76,22 @@ def reproject_disparity(
         The points, depth and validity mask (see :class:`Reprojection`).
 
     Raises:
-        ValueError: A shape or dtype that does not fit, a size other than the cameras', a
+        ArgumentError: A shape or dtype that does not fit, a size other than the cameras', a
             negative range or ``max_range`` below ``min_range``.
     """
     disparity = np.asarray(disparity)
-    _check_2d('disparity', disparity)
+    check_float_map('disparity', disparity)
     h, w = disparity.shape
     if (stereo.left.width, stereo.left.height) != (w, h):
-        raise ValueError(f'disparity is {w}x{h} but the cameras are '
-                         f'{stereo.left.width}x{stereo.left.height}')
+        raise ArgumentError(f'disparity is {w}x{h} but the cameras are '
+                            f'{stereo.left.width}x{stereo.left.height}')
     if min_range < 0 or max_range < 0:
-        raise ValueError(f'min_range ({min_range}) and max_range ({max_range}) must be >= 0')
+        raise ArgumentError(f'min_range ({min_range}) and max_range ({max_range}) must be >= 0')
     if max_range and max_range < min_range:
-        raise ValueError(f'max_range ({max_range}) must be >= min_range ({min_range}) or 0')
+        raise ArgumentError(f'max_range ({max_range}) must be >= min_range ({min_range}) or 0')
     if confidence is not None:
         confidence = np.asarray(confidence)
-        _check_2d('confidence', confidence, disparity.shape)
+        check_float_map('confidence', confidence, disparity.shape)
     return _reproject(disparity, stereo, min_range, max_range, confidence, min_confidence)
 
 
@@ -149,12 +142,12 @@ def depth_std(depth: NDArray[np.floating[Any]], focal: float, baseline: float,
         float32 array of the shape of ``depth``, metres.
 
     Raises:
-        ValueError: ``focal * baseline`` not positive, or ``disparity_std`` negative.
+        ArgumentError: ``focal * baseline`` not positive, or ``disparity_std`` negative.
     """
     if not focal * baseline > 0:
-        raise ValueError(f'focal * baseline must be positive, got {focal} * {baseline}')
+        raise ArgumentError(f'focal * baseline must be positive, got {focal} * {baseline}')
     if not disparity_std >= 0:
-        raise ValueError(f'disparity_std must be >= 0, got {disparity_std}')
+        raise ArgumentError(f'disparity_std must be >= 0, got {disparity_std}')
     z = np.asarray(depth, dtype=np.float64)
     return (z * z * (disparity_std / (focal * baseline))).astype(np.float32)
 

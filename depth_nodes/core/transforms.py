@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import math
 
+from depth_nodes.errors import ArgumentError
+
 __all__ = ['OPTICAL_RPY', 'camera_transform', 'quaternion_from_rpy', 'quaternion_multiply']
 
 #: Roll, pitch, yaw (rad) of the optical frame in the body frame: z forward, x right, y down.
@@ -41,11 +43,11 @@ def camera_transform(x: float, y: float, z: float, roll: float, pitch: float, ya
     (x, y, z) with (roll, pitch, yaw), then, with ``optical``, the optical rotation.
 
     Raises:
-        ValueError: A value that is not finite.
+        ArgumentError: A value that is not finite.
     """
     values = (x, y, z, roll, pitch, yaw)
     if not all(math.isfinite(v) for v in values):
-        raise ValueError(f'transform values must be finite, got {values}')
+        raise ArgumentError(f'transform values must be finite, got {values}')
     rotation = quaternion_from_rpy(roll, pitch, yaw)
     if optical:
         rotation = quaternion_multiply(rotation, quaternion_from_rpy(*OPTICAL_RPY))

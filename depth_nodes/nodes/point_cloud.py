@@ -40,7 +40,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reproject_disparity
-from depth_nodes.errors import MessageError
+from depth_nodes.errors import ArgumentError, MessageError
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import array_to_image, to_rgb8
 from depth_nodes.ros.node import DepthNode, run_node
@@ -176,7 +176,7 @@ class PointCloudNode(DepthNode):
         rgb = conf = None
         if self.use_color:
             if image is None:
-                raise ValueError('use_color is true: on_frame needs the colour image')
+                raise ArgumentError('use_color is true: on_frame needs the colour image')
             colour = self.frame_image(image, 'colour image', shape, COLOR_ENCODINGS,
                                       camera=True)
             if colour is None:
@@ -184,7 +184,7 @@ class PointCloudNode(DepthNode):
             rgb = to_rgb8(*colour)
         if self.use_confidence:
             if confidence is None:
-                raise ValueError('use_confidence is true: on_frame needs the confidence')
+                raise ArgumentError('use_confidence is true: on_frame needs the confidence')
             conf_pixels = self.frame_image(confidence, 'confidence', shape, ('32FC1',))
             if conf_pixels is None:
                 return

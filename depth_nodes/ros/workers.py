@@ -19,6 +19,8 @@ from typing import Any, TypeVar
 import cv2
 import numba
 
+from depth_nodes.errors import ArgumentError
+
 T = TypeVar('T')
 
 
@@ -35,7 +37,7 @@ class OrderedWorkers:
     def __init__(self, count: int, on_error: Callable[[BaseException], None], *,
                  name: str = 'frame') -> None:
         if count < 1:
-            raise ValueError(f'count must be at least 1, got {count}')
+            raise ArgumentError(f'count must be at least 1, got {count}')
         self.count = count
         self._on_error = on_error
         self._pool = ThreadPoolExecutor(max_workers=count, thread_name_prefix=name)

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from depth_nodes.errors import ArgumentError
+
 FloatArray = NDArray[np.float64]
 
 NOISE = 'noise'
@@ -49,9 +51,9 @@ class Texture:
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
-            raise ValueError(f'texture kind must be one of {KINDS}, got {self.kind!r}')
+            raise ArgumentError(f'texture kind must be one of {KINDS}, got {self.kind!r}')
         if not self.period_m > 0:
-            raise ValueError(f'texture period_m must be positive, got {self.period_m}')
+            raise ArgumentError(f'texture period_m must be positive, got {self.period_m}')
 
     def evaluate(self, s: FloatArray, t: FloatArray) -> FloatArray:
         """Reflectance factor at surface coordinates.

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from sensor_msgs.msg import Image
 
+from depth_nodes.errors import ArgumentError
 from depth_nodes.tools.bagio import BagWriter
 from depth_nodes.tools.live_graph import StereoFrame, load_stereo_frames
 
@@ -163,7 +164,7 @@ def write_bad_input_bag(path: str | Path, source: str | Path, *,
     """
     frames = load_stereo_frames(source, NS)
     if not frames:
-        raise ValueError(f'{source} has no complete raw stereo frame under {NS}')
+        raise ArgumentError(f'{source} has no complete raw stereo frame under {NS}')
     campaign = Campaign([], [])
     step = round(STEP_S * 1e9)
     stamp = START_NS - LEAD_IN * step

@@ -44,7 +44,7 @@ from depth_nodes.core.metrics import (
     sparsification_auc,
 )
 from depth_nodes.core.rectify import rectify_image
-from depth_nodes.errors import BagError
+from depth_nodes.errors import ArgumentError, BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array, to_rgb8, to_uint8
@@ -168,10 +168,10 @@ class EvalReport:
         """The grid's best setting by ``key`` (a :class:`MethodScores` field, lower better).
 
         Raises:
-            ValueError: The OpenCV grid did not run.
+            ArgumentError: The OpenCV grid did not run.
         """
         if not self.grid:
-            raise ValueError('the OpenCV grid did not run (baselines off)')
+            raise ArgumentError('the OpenCV grid did not run (baselines off)')
         return min(self.grid, key=lambda r: getattr(r, key))
 
 

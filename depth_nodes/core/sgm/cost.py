@@ -28,6 +28,8 @@ from numba import njit, prange, types
 from numba.extending import intrinsic
 from numpy.typing import NDArray
 
+from depth_nodes.errors import ArgumentError
+
 #: Cost of a disparity whose right pixel lies outside the image.
 OUT_OF_RANGE_COST = 255
 
@@ -97,8 +99,8 @@ def census_transform(image: NDArray[np.generic], window: tuple[int, int],
     if out is None:
         out = np.empty(img.shape, census_dtype(window))
     if np.iinfo(out.dtype).bits < window[0] * window[1] - 1:
-        raise ValueError(f'a {out.dtype} census holds fewer bits than a {window[0]}x'
-                         f'{window[1]} window has neighbours')
+        raise ArgumentError(f'a {out.dtype} census holds fewer bits than a {window[0]}x'
+                            f'{window[1]} window has neighbours')
     ry, rx = window[0] // 2, window[1] // 2
     padded = np.pad(img, ((ry, ry), (rx, rx)), mode='edge')
     _census_kernel(padded, window[0], window[1], mirrored, out)
@@ -529,5 +531,5 @@ def fill_outside(cost: U8, min_disparity: int, value: int) -> None:
     """Set every cell whose right pixel ``x - min_disparity - k`` lies outside the image
     to ``value`` (0..255), in place."""
     if not 0 <= value <= 255:
-        raise ValueError(f'value must be in 0..255, got {value}')
+        raise ArgumentError(f'value must be in 0..255, got {value}')
     _fill_outside(cost, int(min_disparity), np.uint8(value))

@@ -34,6 +34,7 @@ from depth_nodes.core.sgm.cost import (
     mean_best_cost,
 )
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, upward_horizontal_select
+from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]
 
@@ -111,10 +112,10 @@ class SgmParams:
         """Check every field (and the range against ``width``); returns self.
 
         Raises:
-            ValueError: naming the first invalid field and why.
+            ArgumentError: naming the first invalid field and why.
         """
-        def bad(name: str, why: str) -> ValueError:
-            return ValueError(f'SGM parameter {name}={getattr(self, name)!r}: {why}')
+        def bad(name: str, why: str) -> ArgumentError:
+            return ArgumentError(f'SGM parameter {name}={getattr(self, name)!r}: {why}')
 
         if self.disparity_range < 1:
             raise bad('disparity_range', 'must be at least 1')
@@ -245,11 +246,14 @@ class SgmMatcher:
             keep_total: Leave the full aggregated volume in :attr:`total` (tests).
 
         Raises:
-            ValueError: Shapes differ or are not 2-D, or the range does not fit the width.
+            ArgumentError: Shapes differ or are not 2-D, or the range does not fit the width.
         """
-        if left.ndim != 2 or left.shape != right.shape:
-            raise ValueError(f'left {left.shape} and right {right.shape} must be equal 2-D '
-                             'shapes')
+        if left.ndim != 2 or right.ndim != 2:
+            raise ArgumentError(f'left {left.shape} and right {right.shape} must be grey '
+                                '(H, W) images')
+        if left.shape != right.shape:
+            raise ArgumentError(f'left {left.shape} and right {right.shape} must have one '
+                                'size')
         h, w = left.shape
         p = self.params.validate(w)
         b = self._buffers(h, w)
