@@ -200,7 +200,7 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert 'SGM parameter P2=900: must be >= P1 (1000)' in rejected.reason
         (rejected,) = tune(paths=6)
         assert not rejected.successful
-        assert 'must be 4, 5, 8 or 16' in rejected.reason
+        assert 'must be one of 4, 5, 8, 16' in rejected.reason
         (accepted,) = tune(disparity_range=50)  # any range for census_sgm
         assert accepted.successful
         (rejected,) = tune(stereo_algorithm=1)
@@ -343,3 +343,37 @@ def test_hostile_compressed_and_bayer_inputs_are_counted(context: Context) -> No
         assert n.outbox == {}
     finally:
         n.destroy_node()
+
+
+def test_a_census_rule_is_the_same_in_the_core_and_in_the_node(node: Any,
+                                                                 context: Context) -> None:
+    """The node's census parameters come from SgmParams' settings: the same description,
+    and a value the core refuses is refused on set with the core's reason; P2's limit
+    follows the number of paths (4 paths take up to 16128, 8 only 7936)."""
+    from dataclasses import replace
+
+    from depth_nodes.core.settings import rules
+    from depth_nodes.core.sgm import SgmParams
+    from depth_nodes.errors import ArgumentError
+    from depth_nodes.nodes.sgm_stereo import CENSUS_ONLY
+    from depth_nodes.ros.params import ParamSpec
+
+    described = {p.name: p.description for p in node.params._specs.values()
+                 if isinstance(p, ParamSpec)}
+    for name, _, rule in rules(SgmParams):
+        if name in CENSUS_ONLY:
+            assert described[name] == 'census SGM: ' + rule.description
+    with tuner(node, context) as tune:
+        for name, bad in (('census_width', 6), ('intensity_cost', 'sad'),
+                          ('subpixel', 'cubic')):
+            (rejected,) = tune(**{name: bad})
+            assert not rejected.successful
+            with pytest.raises(ArgumentError, match=name) as core:
+                replace(SgmParams(), **{name: bad}).validate()
+            reason = str(core.value).split(': ', 1)[1]
+            assert rejected.reason == f'{name}={bad!r} rejected: {reason}'
+        assert all(r.successful for r in tune(paths=4, P2=16000.0))
+        (rejected,) = tune(paths=8)
+        assert not rejected.successful
+        assert 'SGM parameter P2=16000: must be <= 7936 with 8 paths' in rejected.reason
+        assert all(r.successful for r in tune(P2=7936.0, paths=8))

@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 from depth_nodes.core._validate import float_map as _float_map
 from depth_nodes.core._validate import non_negative as _non_negative
 from depth_nodes.core.confidence import DEFAULT_TERMS, ConfidenceTerms, confidence_map
+from depth_nodes.core.settings import Rule, check_settings, setting
 from depth_nodes.errors import ArgumentError
 
 __all__ = [
@@ -65,6 +66,69 @@ VALID, INVALID, OCCLUDED, MISMATCH, SPECKLE, OUTSIDE = 0, 1, 2, 3, 4, 5
 FILL_MODES = ('background', 'labels')
 #: int16 steps per pixel of the speckle filter's copy (OpenCV's fixed point).
 SPECKLE_SCALE = 16
+
+
+#: disp12_max_diff of -1 (no left-right check): any difference is consistent.
+NO_CHECK = 1e6
+
+#: The speckle filter's area, the same setting in the matcher and the cross-check.
+SPECKLE_SIZE = Rule('Largest area in px of a disparity region removed as a speckle '
+                    '(0: off)', low=0, high=100000)
+
+
+def lr_threshold(value: float) -> float:
+    """``disp12_max_diff`` as OpenCV's StereoSGBM reads it: 0 means 1 px (so
+    stereo_image_proc's default, 0, checks at 1 px); a negative value turns the check off
+    (this package's; OpenCV cannot)."""
+    if value < 0:
+        return -1.0
+    return float(value) if value > 0 else 1.0
+
+
+@dataclass(frozen=True)
+class CrossCheckParams:
+    """The cross_check node's settings, named as its parameters (:func:`cross_check`'s
+    arguments through :meth:`arguments`)."""
+
+    disp12_max_diff: float = setting(
+        1.0, 'Largest |d_left - d_right| in px of a consistent pixel (left-right check), up '
+        "to 64; 0 counts as 1, as in OpenCV's StereoSGBM (stereo_image_proc's default 0 "
+        'reaches this node through /**); -1: no check; integer or double',
+        low=-1.0, high=64.0, number=True)
+    speckle_size: int = setting(100, SPECKLE_SIZE)
+    speckle_range: float = setting(2.0, 'Largest disparity step in px within one region of '
+                                   'the speckle filter, in [0, 64]; integer or double',
+                                   low=0.0, high=64.0, number=True)
+    fill_holes: bool = setting(False, 'Fill the holes (filled pixels get low confidence); '
+                               'see fill_mode')
+    fill_mode: str = setting('background', 'background: every hole takes the farther of its '
+                             'nearest kept neighbours on the row; labels: occlusions do, '
+                             'mismatches take the median of 8 directions, pixels without '
+                             'input stay empty', choices=FILL_MODES)
+    median_size: int = setting(0, 'Median of the output: 0 (off), 3 or 5', choices=(0, 3, 5))
+    keep_extrapolated: bool = setting(True, 'Keep pixels whose match lies outside the right '
+                                      "image (the matcher's extrapolated border strip), at a "
+                                      'confidence that falls with the distance; false drops '
+                                      'them as occlusions')
+    confidence_window: int = setting(9, 'Odd side of the box the cost measure is pooled '
+                                     'over (1: no pooling)', low=1, high=31, odd=True)
+    filled_confidence: float = setting(0.1, 'Confidence factor of filled pixels',
+                                       low=0.0, high=1.0)
+
+    def arguments(self) -> dict[str, Any]:
+        """The keyword arguments of :func:`cross_check` (checked first).
+
+        Raises:
+            ArgumentError: A field breaks its rule.
+        """
+        check_settings(self, 'cross-check parameter')
+        max_diff = lr_threshold(self.disp12_max_diff)
+        return {'disp12_max_diff': max_diff if max_diff > 0 else NO_CHECK,
+                'speckle_size': self.speckle_size, 'speckle_range': self.speckle_range,
+                'fill': self.fill_holes, 'fill_mode': self.fill_mode,
+                'median_size': self.median_size, 'keep_outside': self.keep_extrapolated,
+                'confidence_window': self.confidence_window,
+                'filled_confidence': self.filled_confidence}
 
 
 @dataclass(frozen=True)

@@ -33,42 +33,23 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Mapping
+from dataclasses import fields
 from typing import Any
 
 import numpy as np
 from sensor_msgs.msg import Image
 from stereo_msgs.msg import DisparityImage
 
-from depth_nodes.core.cross_check import FILL_MODES, cross_check
+from depth_nodes.core.cross_check import CrossCheckParams, cross_check
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import NodeParameters, ParamSpec, lr_threshold
+from depth_nodes.ros.params import NodeParameters, ParamSpec, specs_from
 from depth_nodes.ros.workers import use_threads
 
-
-def _one_of(choices: tuple[Any, ...]) -> Any:
-    def check(value: Any) -> str | None:
-        return None if value in choices else f'must be one of {", ".join(map(str, choices))}'
-    return check
-
-
-def _odd(value: int) -> str | None:
-    return None if value % 2 == 1 else 'must be odd'
-
-
-def _pixels(low: float, high: float) -> Any:
-    """Check of a px value given as an int (stereo_image_proc's type) or a double."""
-    def check(value: Any) -> str | None:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return 'must be a number (integer or double)'
-        return None if low <= value <= high else f'must be in [{low:g}, {high:g}]'
-    return check
-
-
-#: disp12_max_diff of -1 (no left-right check): any difference is consistent.
-NO_CHECK = 1e6
+#: The parameters of the algorithm, declared from CrossCheckParams' settings.
+PARAMETER_NAMES = tuple(f.name for f in fields(CrossCheckParams))
 
 PARAMETERS = [
     ParamSpec('queue_size', 5, 'Synchroniser queue of the three inputs', 1, 1000,
@@ -77,29 +58,7 @@ PARAMETERS = [
               'instead of exact stamps', read_only=True),
     ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
               'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
-    ParamSpec('disp12_max_diff', 1.0, 'Largest |d_left - d_right| in px of a consistent '
-              'pixel (left-right check), up to 64; 0 counts as 1, as in OpenCV\'s StereoSGBM '
-              '(stereo_image_proc\'s default 0 reaches this node through /**); -1: no '
-              'check; integer or double', dynamic_typing=True, check=_pixels(-1.0, 64.0)),
-    ParamSpec('speckle_size', 100, 'Largest area in px of a disparity region removed as a '
-              'speckle (0: off)', 0, 100000),
-    ParamSpec('speckle_range', 2.0, 'Largest disparity step in px within one region of '
-              'the speckle filter, in [0, 64]; integer or double', dynamic_typing=True,
-              check=_pixels(0.0, 64.0)),
-    ParamSpec('fill_holes', False, 'Fill the holes (filled pixels get low confidence); '
-              'see fill_mode'),
-    ParamSpec('fill_mode', 'background', 'background: every hole takes the farther of its '
-              'nearest kept neighbours on the row; labels: occlusions do, mismatches take '
-              'the median of 8 directions, pixels without input stay empty',
-              check=_one_of(FILL_MODES)),
-    ParamSpec('median_size', 0, 'Median of the output: 0 (off), 3 or 5',
-              0, 5, check=_one_of((0, 3, 5))),
-    ParamSpec('keep_extrapolated', True, 'Keep pixels whose match lies outside the right '
-              'image (the matcher\'s extrapolated border strip), at a confidence that '
-              'falls with the distance; false drops them as occlusions'),
-    ParamSpec('confidence_window', 9, 'Odd side of the box the cost measure is pooled '
-              'over (1: no pooling)', 1, 31, check=_odd),
-    ParamSpec('filled_confidence', 0.1, 'Confidence factor of filled pixels', 0.0, 1.0),
+    *specs_from(CrossCheckParams, PARAMETER_NAMES),
     ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0 (or more '
               'than the cores): every core. '
               'A frame takes 5 - 20 ms here; under load a second thread mostly spins '
@@ -164,16 +123,8 @@ class CrossCheckNode(DepthNode):
         ratio = cost[0]
         if np.isnan(ratio).all():  # no matching cost (OpenCV): leave distinctiveness out
             ratio = np.zeros_like(ratio)
-        max_diff = lr_threshold(values['disp12_max_diff'])
-        result = cross_check(
-            left.disparity, right.disparity, ratio,
-            disp12_max_diff=max_diff if max_diff > 0 else NO_CHECK,
-            speckle_size=values['speckle_size'],
-            speckle_range=values['speckle_range'], fill=values['fill_holes'],
-            fill_mode=values['fill_mode'], median_size=values['median_size'],
-            keep_outside=values['keep_extrapolated'],
-            confidence_window=values['confidence_window'],
-            filled_confidence=values['filled_confidence'])
+        params = CrossCheckParams(**{name: values[name] for name in PARAMETER_NAMES})
+        result = cross_check(left.disparity, right.disparity, ratio, **params.arguments())
         header = disparity_msg.header
         self.pub_disparity.publish(build_disparity(
             result.disparity, header, focal=left.focal, baseline=left.baseline,

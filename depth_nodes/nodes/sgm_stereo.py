@@ -54,10 +54,12 @@ from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.core.baseline import BmSettings, SgbmSettings, opencv_bm, opencv_sgbm
+from depth_nodes.core.cross_check import lr_threshold
+from depth_nodes.core.settings import Rule, problem
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
-from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
-from depth_nodes.core.sgm.select import SUBPIXEL_MODES, SUBPIXEL_STEP
+from depth_nodes.core.sgm.matcher import P2_MAX
+from depth_nodes.core.sgm.select import SUBPIXEL_STEP
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image, to_uint8
 from depth_nodes.ros.node import DepthNode, run_node
@@ -65,18 +67,20 @@ from depth_nodes.ros.params import (
     IMAGE_TRANSPORT,
     NodeParameters,
     ParamSpec,
-    lr_threshold,
-    one_of,
+    specs_from,
 )
 from depth_nodes.ros.workers import OrderedWorkers, use_threads
 
+#: The census matcher's own parameters, declared from SgmParams' settings.
+CENSUS_ONLY = ('census_width', 'census_height', 'census_weight', 'intensity_weight',
+               'intensity_cost', 'intensity_truncation', 'p2_adaptive_scale', 'paths',
+               'subpixel', 'median_filter', 'match_brightness', 'border_cost',
+               'border_extrapolation')
+_ODD = Rule('', odd=True)
+
 
 def _odd(value: int) -> str | None:
-    return None if value % 2 == 1 else 'must be odd'
-
-
-def _paths(value: int) -> str | None:
-    return None if value in VERTICAL_DIRECTIONS else 'must be 4, 5, 8 or 16'
+    return problem(_ODD, value)
 
 
 #: stereo_algorithm: stereo_image_proc's 0 (OpenCV block matching) and 1 (OpenCV
@@ -96,8 +100,6 @@ UPSTREAM_DEFAULTS = {'disparity_range': 64, 'P1': 200.0, 'P2': 400.0, 'uniquenes
                      'speckle_range': 4, 'disp12_max_diff': 0}
 CENSUS_DEFAULTS = {'disparity_range': 128, 'P1': 18.0, 'P2': 220.0, 'uniqueness_ratio': 10.0,
                    'speckle_range': 2, 'disp12_max_diff': 2}
-#: The largest P2 of the census matcher with 4 paths (16-bit sums; fewer for more paths).
-P2_MAX = 65535 // 4 - OUT_OF_RANGE_COST
 
 
 def _default(name: str) -> Any:
@@ -124,8 +126,6 @@ PARAMETERS = [
         'stereo_image_proc; a node started with 0 or 1 takes stereo_image_proc\'s '
         'defaults for P1, P2, uniqueness_ratio, speckle_range, disp12_max_diff, '
         'disparity_range)', min(ALGORITHMS), max(ALGORITHMS)),
-    ParamSpec('min_disparity', 0, 'Smallest disparity searched, px (may be negative)',
-              -2048, 2048),
     ParamSpec('disparity_range', _default('disparity_range'), 'Number of disparities searched '
               '(any number with census SGM, a multiple of 16 with OpenCV)', 1, 4096),
     ParamSpec('P1', _default('P1'), 'Penalty of a 1 px disparity change between neighbours '
@@ -135,32 +135,8 @@ PARAMETERS = [
               'otherwise)', 0.0, float(P2_MAX)),
     ParamSpec('uniqueness_ratio', _default('uniqueness_ratio'), 'Percent by which the best '
               'cost must beat the best non-neighbouring disparity', 0.0, 100.0),
-    ParamSpec('paths', 8, 'census SGM: aggregation paths 4, 5 (one pass), 8 or 16', 4, 16,
-              check=_paths),
-    ParamSpec('census_width', 5, 'census SGM: census window width (odd)', 3, 9, check=_odd),
-    ParamSpec('census_height', 5, 'census SGM: census window height (odd)', 3, 9, check=_odd),
-    ParamSpec('census_weight', 1, 'census SGM: weight of the census Hamming cost', 0, 8),
-    ParamSpec('intensity_weight', 1, 'census SGM: weight of the intensity cost (0: census '
-              'only)', 0, 8),
-    ParamSpec('intensity_cost', 'bt', 'census SGM: intensity cost, bt (Birchfield-Tomasi) or '
-              'ad', check=one_of(('bt', 'ad'))),
-    ParamSpec('intensity_truncation', 30, 'census SGM: cap of the intensity cost, grey levels',
-              1, 255),
-    ParamSpec('p2_adaptive_scale', 8.0, 'census SGM: grey-level scale of the image-adaptive '
-              'P2 (0: constant P2)', 0.0, 255.0),
-    ParamSpec('subpixel', 'parabola', 'census SGM: sub-pixel refinement, parabola, '
-              'equiangular or none', check=one_of(list(SUBPIXEL_MODES))),
-    ParamSpec('median_filter', False, 'census SGM: 3x3 median on the left disparity'),
-    ParamSpec('match_brightness', True, 'census SGM: give the right image the left\'s mean '
-              'and spread before the intensity cost (a gain or offset between the cameras)'),
-    ParamSpec('border_cost', 3.5, 'census SGM: cost of a disparity whose match is outside '
-              'the right image, in units of the frame\'s mean best cost; the left border '
-              'strip then takes its neighbours\' disparity (0: never chosen)', 0.0, 100.0),
-    ParamSpec('border_extrapolation', 0.25, 'census SGM: how far past the image border an '
-              'extrapolated disparity is published, as a fraction of disparity_range',
-              0.0, 1.0),
-    ParamSpec('speckle_size', 100, 'Largest area in px of a disparity region removed as a '
-              'speckle (0: off)', 0, 100000),
+    *specs_from(SgmParams, ('min_disparity', 'speckle_size')),
+    *specs_from(SgmParams, CENSUS_ONLY, prefix='census SGM: '),
     ParamSpec('speckle_range', _default('speckle_range'), 'Largest disparity step in px '
               'within one speckle region', 0, 64),
     ParamSpec('disp12_max_diff', _default('disp12_max_diff'), 'Left-right check: largest '

@@ -28,6 +28,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from depth_nodes.core.settings import Rule, problem, rules
 from depth_nodes.errors import ConfigError
 from depth_nodes.ros.transport import TRANSPORTS
 
@@ -139,11 +140,30 @@ class NodeParameters:
         return SetParametersResult(successful=True)
 
 
+def spec_of(name: str, default: Any, rule: Rule, *, prefix: str = '',
+            read_only: bool = False) -> ParamSpec:
+    """The parameter of a setting with ``rule`` (see :mod:`depth_nodes.core.settings`):
+    its description, its range in the descriptor, its other rules (choices, odd, number)
+    checked on set with the same reason the core gives."""
+    ranged = rule.low is not None and rule.high is not None and not rule.number
+    return ParamSpec(name, default, prefix + rule.description,
+                     rule.low if ranged else None, rule.high if ranged else None,
+                     read_only=read_only, dynamic_typing=rule.number,
+                     check=lambda value: problem(rule, value))
+
+
+def specs_from(params: type, names: tuple[str, ...] | list[str], *,
+               prefix: str = '') -> list[ParamSpec]:
+    """The parameters ``names`` of a core ``*Params`` dataclass, declared from its
+    settings (default, description and rule)."""
+    table = {name: (default, rule) for name, default, rule in rules(params)}
+    return [spec_of(name, *table[name], prefix=prefix) for name in names]
+
+
 def one_of(choices: tuple[Any, ...] | list[Any]) -> Check:
     """A check that a value is one of ``choices`` (the reason lists them)."""
-    def check(value: Any) -> str | None:
-        return None if value in choices else f'must be one of {", ".join(map(str, choices))}'
-    return check
+    rule = Rule('', choices=tuple(choices))
+    return lambda value: problem(rule, value)
 
 
 #: The ``image_transport`` parameter of a node with camera-image inputs, as image_pipeline's
@@ -152,12 +172,3 @@ IMAGE_TRANSPORT = ParamSpec(
     'image_transport', 'raw', 'How the camera images arrive: raw (sensor_msgs/Image on the '
     'topic), compressed (sensor_msgs/CompressedImage, JPEG or PNG, on <topic>/compressed) or '
     'compressedDepth (<topic>/compressedDepth)', read_only=True, check=one_of(TRANSPORTS))
-
-
-def lr_threshold(value: float) -> float:
-    """``disp12_max_diff`` as OpenCV's StereoSGBM reads it: 0 means 1 px (so
-    stereo_image_proc's default, 0, checks at 1 px); a negative value turns the check off
-    (this package's; OpenCV cannot)."""
-    if value < 0:
-        return -1.0
-    return float(value) if value > 0 else 1.0

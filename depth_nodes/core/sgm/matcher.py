@@ -17,7 +17,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.cross_check import remove_speckles
+from depth_nodes.core.cross_check import SPECKLE_SIZE, remove_speckles
+from depth_nodes.core.settings import check_settings, setting
 from depth_nodes.core.sgm.aggregate import (
     SINGLE_PASS,
     VERTICAL_DIRECTIONS,
@@ -40,73 +41,72 @@ F32 = NDArray[np.float32]
 
 #: Row pieces per thread in the parallel sweeps (a few, so the threads finish together).
 CHUNKS_PER_THREAD = 4
+#: How a settings error names the matcher.
+LABEL = 'SGM parameter'
+#: The largest P2 (with 4 paths; fewer with more: the 16-bit sum of the paths).
+P2_MAX = 65535 // min(VERTICAL_DIRECTIONS) - OUT_OF_RANGE_COST
 
 
 @dataclass(frozen=True)
 class SgmParams:
     """Matcher settings (names follow stereo_image_proc where the meaning is the same).
 
-    Attributes:
-        min_disparity: Smallest disparity searched (may be negative).
-        disparity_range: Number of disparities searched (any positive number).
-        census_width: Census window width (odd, 3..9).
-        census_height: Census window height (odd, 3..9); width x height - 1 <= 63.
-        census_weight: Weight of the census Hamming distance (0 disables census).
-        intensity_weight: Weight of the intensity cost (0 disables it).
-        intensity_cost: ``'bt'`` (Birchfield-Tomasi) or ``'ad'`` (absolute difference).
-        intensity_truncation: Cap of the intensity cost in grey levels.
-        P1: Penalty of a disparity change of 1 between neighbours.
-        P2: Penalty of a larger change (>= P1).
-        p2_adaptive_scale: Grey-level scale of the image-adaptive P2
-            (P2' = max(P1, P2 / (1 + |dI| / scale))); 0 keeps P2 constant.
-        paths: 4, 5, 8 or 16 aggregation paths. 5 (both horizontals and the three from
-            above, like OpenCV's MODE_SGBM) run in one pass without the (H, W, D) uint16
-            sum of 8 and 16 (MODE_HH's directions and more).
-        uniqueness_ratio: Percent by which the winner must beat the best non-neighbouring
-            disparity (OpenCV's rule); 0 disables the check.
-        subpixel: ``'parabola'``, ``'equiangular'`` or ``'none'``.
-        median_filter: Apply a 3x3 median to the left disparity.
-        match_brightness: Give the right image the left's mean and standard deviation
-            before the intensity cost (a global gain and offset between the cameras).
-        border_cost: Cost of a disparity whose match lies outside the right image, in
-            units of the frame's mean best matching cost; the left border strip then
-            takes the disparity its neighbours carry in (extrapolation) instead of being
-            forced to one inside the image. 0: such disparities are never chosen.
-        border_extrapolation: How far past the image border an extrapolated disparity's
-            match may lie and still be published, as a fraction of disparity_range.
-        disp12_max_diff: Left-right check: largest difference in px between the left
-            disparity and the right view's at x - d (both from the same volume); <= 0
-            disables it (stereo_image_proc's name and rule).
-        speckle_size: Largest area in px of a disparity region that is removed as a
-            speckle (0 disables; stereo_image_proc's name).
-        speckle_range: Largest step in px between neighbours of one region.
+    Each field's meaning and range are given by its :func:`setting` below; the sgm_stereo
+    node declares its census parameters from them, so ``ros2 param describe`` shows the
+    same text. :meth:`validate` adds the rules that join fields (the census window's
+    bits, P2 >= P1, P2's limit for the number of paths, the range against the width).
 
     The defaults were chosen on the simulator scenes and on the two Middlebury 2003 pairs
     together (README, "Accuracy on real pairs"): census 5x5 plus Birchfield-Tomasi on
     brightness-matched images, P2 adapted strongly to intensity edges.
     """
 
-    min_disparity: int = 0
-    disparity_range: int = 128
-    census_width: int = 5
-    census_height: int = 5
-    census_weight: int = 1
-    intensity_weight: int = 1
-    intensity_cost: str = 'bt'
-    intensity_truncation: int = 30
-    P1: int = 18
-    P2: int = 220
-    p2_adaptive_scale: float = 8.0
-    paths: int = 8
-    uniqueness_ratio: float = 10.0
-    subpixel: str = 'parabola'
-    median_filter: bool = False
-    match_brightness: bool = True
-    border_cost: float = 3.5
-    border_extrapolation: float = 0.25
-    disp12_max_diff: float = 2.0
-    speckle_size: int = 100
-    speckle_range: float = 2.0
+    min_disparity: int = setting(0, 'Smallest disparity searched, px (may be negative)',
+                                 low=-2048, high=2048)
+    disparity_range: int = setting(128, 'Number of disparities searched (any number)',
+                                   low=1, high=4096)
+    census_width: int = setting(5, 'census window width (odd)', low=3, high=9, odd=True)
+    census_height: int = setting(5, 'census window height (odd; width x height - 1 <= 63)',
+                                 low=3, high=9, odd=True)
+    census_weight: int = setting(1, 'weight of the census Hamming cost (0: intensity only)',
+                                 low=0, high=8)
+    intensity_weight: int = setting(1, 'weight of the intensity cost (0: census only)',
+                                    low=0, high=8)
+    intensity_cost: str = setting('bt', 'intensity cost, bt (Birchfield-Tomasi) or ad '
+                                  '(absolute difference)', choices=('bt', 'ad'))
+    intensity_truncation: int = setting(30, 'cap of the intensity cost, grey levels',
+                                        low=1, high=255)
+    P1: int = setting(18, 'Penalty of a 1 px disparity change between neighbours',
+                      low=0, high=4000)
+    P2: int = setting(220, 'Penalty of a larger disparity change (>= P1; at most '
+                      f'65535 / paths - {OUT_OF_RANGE_COST})', low=0, high=P2_MAX)
+    p2_adaptive_scale: float = setting(8.0, 'grey-level scale of the image-adaptive P2, '
+                                       "P2' = max(P1, P2 / (1 + |dI| / scale)) (0: constant "
+                                       'P2)', low=0.0, high=255.0)
+    paths: int = setting(8, 'aggregation paths: 4, 5 (both horizontals and the three from '
+                         "above, one pass, like OpenCV's MODE_SGBM), 8 (MODE_HH's) or 16",
+                         choices=tuple(VERTICAL_DIRECTIONS))
+    uniqueness_ratio: float = setting(10.0, 'Percent by which the best cost must beat the '
+                                      'best non-neighbouring disparity (0: off; below 100)',
+                                      low=0.0, high=100.0)
+    subpixel: str = setting('parabola', 'sub-pixel refinement, parabola, equiangular or '
+                            'none', choices=tuple(SUBPIXEL_MODES))
+    median_filter: bool = setting(False, '3x3 median on the left disparity')
+    match_brightness: bool = setting(True, "give the right image the left's mean and "
+                                     'spread before the intensity cost (a gain or offset '
+                                     'between the cameras)')
+    border_cost: float = setting(3.5, 'cost of a disparity whose match is outside the '
+                                 "right image, in units of the frame's mean best cost; the "
+                                 "left border strip then takes its neighbours' disparity "
+                                 '(0: never chosen)', low=0.0, high=100.0)
+    border_extrapolation: float = setting(0.25, 'how far past the image border an '
+                                          'extrapolated disparity is published, as a '
+                                          'fraction of disparity_range', low=0.0, high=1.0)
+    disp12_max_diff: float = setting(2.0, 'Left-right check: largest |d_left - d_right| in '
+                                     'px (<= 0: off)')
+    speckle_size: int = setting(100, SPECKLE_SIZE)
+    speckle_range: float = setting(2.0, 'Largest disparity step in px within one speckle '
+                                   'region', low=0.0, high=64.0)
 
     def validate(self, width: int | None = None) -> SgmParams:
         """Check every field (and the range against ``width``); returns self.
@@ -115,49 +115,22 @@ class SgmParams:
             ArgumentError: naming the first invalid field and why.
         """
         def bad(name: str, why: str) -> ArgumentError:
-            return ArgumentError(f'SGM parameter {name}={getattr(self, name)!r}: {why}')
+            return ArgumentError(f'{LABEL} {name}={getattr(self, name)!r}: {why}')
 
-        if self.disparity_range < 1:
-            raise bad('disparity_range', 'must be at least 1')
-        for name in ('census_width', 'census_height'):
-            value = getattr(self, name)
-            if value % 2 == 0 or not 3 <= value <= 9:
-                raise bad(name, 'must be odd, 3..9')
+        check_settings(self, LABEL)
         if self.census_width * self.census_height - 1 > 63:
             raise bad('census_width', f'a {self.census_width}x{self.census_height} window has '
                       'more than 63 neighbours (use at most 9x7)')
-        if self.census_weight < 0 or self.intensity_weight < 0:
-            raise bad('census_weight', 'weights must be >= 0')
         if self.census_weight == 0 and self.intensity_weight == 0:
             raise bad('census_weight', 'census_weight and intensity_weight cannot both be 0')
-        if self.intensity_cost not in ('bt', 'ad'):
-            raise bad('intensity_cost', "must be 'bt' or 'ad'")
-        if self.intensity_truncation < 1:
-            raise bad('intensity_truncation', 'must be >= 1')
-        if self.P1 < 0:
-            raise bad('P1', 'must be >= 0')
+        if self.uniqueness_ratio == 100:
+            raise bad('uniqueness_ratio', 'must be below 100')
         if self.P2 < self.P1:
             raise bad('P2', f'must be >= P1 ({self.P1})')
-        if self.paths not in VERTICAL_DIRECTIONS:
-            raise bad('paths', 'must be 4, 5, 8 or 16')
         limit = 65535 // self.paths - OUT_OF_RANGE_COST
         if limit < self.P2:
             raise bad('P2', f'must be <= {limit} with {self.paths} paths, so that the 16-bit '
                       'sum of the paths cannot overflow')
-        if self.p2_adaptive_scale < 0:
-            raise bad('p2_adaptive_scale', 'must be >= 0')
-        if not 0 <= self.uniqueness_ratio < 100:
-            raise bad('uniqueness_ratio', 'must be in [0, 100)')
-        if self.subpixel not in SUBPIXEL_MODES:
-            raise bad('subpixel', f'must be one of {", ".join(SUBPIXEL_MODES)}')
-        if not 0 <= self.border_cost <= 100:
-            raise bad('border_cost', 'must be in [0, 100]')
-        if not 0 <= self.border_extrapolation <= 1:
-            raise bad('border_extrapolation', 'must be in [0, 1]')
-        if self.speckle_size < 0:
-            raise bad('speckle_size', 'must be >= 0')
-        if self.speckle_range < 0:
-            raise bad('speckle_range', 'must be >= 0')
         if width is not None and self.disparity_range >= width:
             raise bad('disparity_range', f'is not smaller than the image width {width}')
         if width is not None and not -width < self.min_disparity < width:
