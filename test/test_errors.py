@@ -113,7 +113,7 @@ CASES: list[tuple[str, Callable[[], Any], str]] = [
      'disparity is 6x4 but the cameras are 40x30'),
     ('reproject: ranges', lambda: reproject_disparity(
         np.zeros((30, 40), np.float32), STEREO, min_range=-1),
-     'must be >= 0'),
+     'point cloud parameter min_range=-1: must be in [0, 1e+06]'),
     ('reproject: order', lambda: reproject_disparity(
         np.zeros((30, 40), np.float32), STEREO, min_range=5, max_range=1),
      'max_range (1) must be >= min_range (5) or 0'),

@@ -65,3 +65,28 @@ def test_tail_of_one_sequence_and_head_of_the_next_do_not_make_one() -> None:
 def test_bad_tags(text: str, message: str) -> None:
     with pytest.raises(MessageError, match=message):
         parse_tag(text)
+
+
+def test_tag_pairer_pairs_whichever_comes_first_and_counts_the_rest() -> None:
+    from depth_nodes.core.structured_light.framing import TagPairer
+
+    pairer = TagPairer(queue_size=2)
+    assert pairer.add_frame(10, 'f10') == (None, [])
+    assert pairer.add_tag(10, 't10') == ('f10', [])  # the frame came first
+    assert pairer.add_tag(20, 't20') == (None, [])
+    assert pairer.add_frame(20, 'f20') == ('t20', [])  # the tag came first
+    pairer.add_frame(30, 'f30')
+    frame, drops = pairer.add_tag(40, 't40')
+    assert frame is None
+    assert drops == []
+    pairer.add_frame(50, 'f50')
+    frame, drops = pairer.add_tag(50, 't50')  # 30 never got its tag, a later frame did
+    assert frame == 'f50'
+    assert [(d.reason, d.count) for d in drops] == [('pattern_tag_missing', 1)]
+    for stamp in (60, 70, 80, 90):  # four more tags: five wait, one more than 2 x 2
+        _, drops = pairer.add_tag(stamp, f't{stamp}')
+    assert [d.reason for d in drops] == ['pattern_tag_unmatched']
+    pairer.add_frame(100, 'f100')
+    assert [(d.reason, d.count) for d in pairer.finish()] == [
+        ('pattern_tag_missing', 1), ('pattern_tag_unmatched', 4)]
+    assert pairer.finish() == []

@@ -167,6 +167,35 @@ def test_bad_and_missing_tags(node: Any) -> None:
     assert node.drops['pattern_tag_missing'] == 1
 
 
+def test_tags_without_images_are_counted(node: Any) -> None:
+    """A projector driver publishing tags for images that never come: up to twice the
+    queue waits, the rest is pattern_tag_unmatched, and what waits at the end of the
+    stream is counted too."""
+    for k in range(12):  # queue_size 5: ten tags wait, the 11th and 12th evict two
+        node.cb['/pattern'](_header(10**9 + k, f'0:0/{N}'))
+    assert node.drops == {'pattern_tag_unmatched': 2}
+    node.finish_stream()
+    assert node.drops == {'pattern_tag_unmatched': 12}
+
+
+def test_a_pattern_set_that_does_not_fit_the_projector_is_dropped(context: Context) -> None:
+    """A phase period longer than the projector is wide (a 64 px projector here): the
+    parameters are valid, the set built from them is not: bad_pattern_set, no output."""
+    node = _make(context, phase_period=100.0)
+    try:
+        h = _header(10**9)
+        small = model_to_camera_info(CAPTURE.projector, h)
+        small.width, small.height = 64, 48
+        node.cb['/projector/camera_info'](small)
+        node.cb['/image'](array_to_image(CAPTURE.images[0], 'mono8', h))
+        node.cb['/camera_info'](model_to_camera_info(CAPTURE.camera, h))
+        node.cb['/pattern'](_header(10**9, f'0:0/{N}'))
+        assert node.outbox == []
+        assert node.drops == {'bad_pattern_set': 1}
+    finally:
+        node.destroy_node()
+
+
 def test_unsupported_encoding(node: Any) -> None:
     h = _header(10**9)
     msg = array_to_image(CAPTURE.images[0], 'mono8', h)

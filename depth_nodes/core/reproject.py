@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from depth_nodes.core._validate import check_float_map
 from depth_nodes.core.camera import StereoModel
+from depth_nodes.core.settings import check_settings, setting
 from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]
@@ -49,6 +50,32 @@ class Reprojection:
     points: F32
     depth: F32
     valid: NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class ReprojectParams:
+    """The point_cloud node's settings of the reprojection, named as its parameters."""
+
+    min_range: float = setting(0.0, 'Nearest depth Z kept, metres (0: no limit)',
+                               low=0.0, high=1.0e6)
+    max_range: float = setting(0.0, 'Farthest depth Z kept, metres (0: no limit)',
+                               low=0.0, high=1.0e6)
+    min_confidence: float = setting(0.0, 'Smallest confidence kept (needs use_confidence)',
+                                    low=0.0, high=1.0)
+    disparity_std: float = setting(0.25, 'Disparity standard deviation, px, for depth_std',
+                                   low=0.0, high=100.0)
+
+    def validate(self) -> ReprojectParams:
+        """Check every field and that the range is not empty; returns self.
+
+        Raises:
+            ArgumentError: The first rule broken.
+        """
+        check_settings(self, 'point cloud parameter')
+        if self.max_range and self.max_range < self.min_range:
+            raise ArgumentError(f'max_range ({self.max_range}) must be >= min_range '
+                                f'({self.min_range}) or 0 (no limit)')
+        return self
 
 
 def reproject_disparity(
@@ -85,10 +112,7 @@ def reproject_disparity(
     if (stereo.left.width, stereo.left.height) != (w, h):
         raise ArgumentError(f'disparity is {w}x{h} but the cameras are '
                             f'{stereo.left.width}x{stereo.left.height}')
-    if min_range < 0 or max_range < 0:
-        raise ArgumentError(f'min_range ({min_range}) and max_range ({max_range}) must be >= 0')
-    if max_range and max_range < min_range:
-        raise ArgumentError(f'max_range ({max_range}) must be >= min_range ({min_range}) or 0')
+    ReprojectParams(min_range=min_range, max_range=max_range).validate()
     if confidence is not None:
         confidence = np.asarray(confidence)
         check_float_map('confidence', confidence, disparity.shape)

@@ -45,24 +45,16 @@ from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import NodeParameters, ParamSpec, specs_from
+from depth_nodes.ros.params import THREADS, NodeParameters, specs_from, synchroniser_specs
 from depth_nodes.ros.workers import use_threads
 
 #: The parameters of the algorithm, declared from CrossCheckParams' settings.
 PARAMETER_NAMES = tuple(f.name for f in fields(CrossCheckParams))
 
 PARAMETERS = [
-    ParamSpec('queue_size', 5, 'Synchroniser queue of the three inputs', 1, 1000,
-              read_only=True),
-    ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
-              'instead of exact stamps', read_only=True),
-    ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
-              'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
+    *synchroniser_specs('the three inputs', qos=False),
     *specs_from(CrossCheckParams, PARAMETER_NAMES),
-    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0 (or more '
-              'than the cores): every core. '
-              'A frame takes 5 - 20 ms here; under load a second thread mostly spins '
-              'waiting for the first (see the README, bench --live)', 0, 1024),
+    THREADS,
 ]
 
 

@@ -33,18 +33,32 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Mapping
+from dataclasses import fields
 from typing import Any
 
 from rclpy.qos import qos_profile_system_default
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reproject_disparity
+from depth_nodes.core.reproject import (
+    ReprojectParams,
+    depth_std,
+    depth_to_millimetres,
+    reproject_disparity,
+)
 from depth_nodes.errors import ArgumentError, MessageError
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import array_to_image, to_rgb8
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
+from depth_nodes.ros.params import (
+    IMAGE_TRANSPORT,
+    THREADS,
+    NodeParameters,
+    ParamSpec,
+    one_of,
+    specs_from,
+    synchroniser_specs,
+)
 from depth_nodes.ros.pointcloud import build_pointcloud
 from depth_nodes.ros.workers import use_threads
 
@@ -72,46 +86,35 @@ def _check_extra_fields(value: str) -> str | None:
     return None
 
 
-def _check_depth_encoding(value: str) -> str | None:
-    return None if value in DEPTH_ENCODINGS else f'must be one of {", ".join(DEPTH_ENCODINGS)}'
-
-
 PARAMETERS = [
     IMAGE_TRANSPORT,
-    ParamSpec('queue_size', 5, 'Synchroniser queue of the inputs', 1, 1000, read_only=True),
-    ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
-              'instead of exact stamps', read_only=True),
-    ParamSpec('use_system_default_qos', False, 'Subscribe with the system default QoS '
-              '(reliable) instead of sensor data QoS', read_only=True),
-    ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
-              'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
+    *synchroniser_specs('the inputs'),
     ParamSpec('use_color', True, 'Subscribe left/image_rect_color and add rgb to points2 '
               '(start-up only)', read_only=True),
     ParamSpec('use_confidence', False, 'Subscribe confidence (32FC1 in [0, 1]) for '
               'min_confidence and the confidence field (start-up only)', read_only=True),
     ParamSpec('avoid_point_cloud_padding', False, 'Pack points (12/16 bytes) instead of '
               'padding them to 16/32 bytes'),
-    ParamSpec('min_range', 0.0, 'Nearest depth Z kept, metres (0: no limit)', 0.0, 1.0e6),
-    ParamSpec('max_range', 0.0, 'Farthest depth Z kept, metres (0: no limit)', 0.0, 1.0e6),
-    ParamSpec('min_confidence', 0.0, 'Smallest confidence kept (needs use_confidence)',
-              0.0, 1.0),
+    *specs_from(ReprojectParams, ('min_range', 'max_range', 'min_confidence')),
     ParamSpec('depth_encoding', '32FC1', 'depth image: 32FC1 metres (NaN unknown) or 16UC1 '
-              'millimetres (0 unknown)', check=_check_depth_encoding),
+              'millimetres (0 unknown)', check=one_of(DEPTH_ENCODINGS)),
     ParamSpec('extra_fields', '', 'Comma-separated extra float32 fields of points2: '
               'confidence (needs use_confidence), depth_std', check=_check_extra_fields),
-    ParamSpec('disparity_std', 0.25, 'Disparity standard deviation, px, for depth_std',
-              0.0, 100.0),
-    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0 (or more '
-              'than the cores): every core. '
-              'A frame takes 5 - 20 ms here; under load a second thread mostly spins '
-              'waiting for the first (see the README, bench --live)', 0, 1024),
+    *specs_from(ReprojectParams, ('disparity_std',)),
+    THREADS,
 ]
 
 
+def _reprojection(values: Mapping[str, Any]) -> ReprojectParams:
+    return ReprojectParams(**{f.name: values[f.name]
+                              for f in fields(ReprojectParams)}).validate()
+
+
 def _cross_check(values: Mapping[str, Any]) -> str | None:
-    if values['max_range'] and values['max_range'] < values['min_range']:
-        return (f'max_range ({values["max_range"]}) must be >= min_range '
-                f'({values["min_range"]}) or 0 (no limit)')
+    try:
+        _reprojection(values)
+    except ArgumentError as exc:
+        return str(exc)
     if not values['use_confidence']:
         if values['min_confidence'] > 0:
             return 'min_confidence needs use_confidence: true (set at start-up)'
@@ -189,16 +192,17 @@ class PointCloudNode(DepthNode):
             if conf_pixels is None:
                 return
             conf = conf_pixels[0]
+        limits = _reprojection(values)
         result = reproject_disparity(
-            disparity, stereo, min_range=values['min_range'], max_range=values['max_range'],
-            confidence=conf, min_confidence=values['min_confidence'])
+            disparity, stereo, min_range=limits.min_range, max_range=limits.max_range,
+            confidence=conf, min_confidence=limits.min_confidence)
         extra: dict[str, Any] = {}
         for name in parse_extra_fields(values['extra_fields']):
             if name == 'confidence':
                 extra[name] = conf
             else:
                 extra[name] = depth_std(result.depth, stereo.focal, stereo.baseline,
-                                        values['disparity_std'])
+                                        limits.disparity_std)
         header = disparity_msg.header
         self.pub_points.publish(build_pointcloud(
             result.points, header, rgb=rgb, pad=not values['avoid_point_cloud_padding'],

@@ -28,7 +28,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.rectify import INTERPOLATIONS, Rectifier, interpolation_flag
 from depth_nodes.errors import CalibrationError, MessageError
-from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model
 from depth_nodes.ros.image import (
     DEBAYER_METHODS,
     READABLE_ENCODINGS,
@@ -36,7 +36,12 @@ from depth_nodes.ros.image import (
     to_gray,
 )
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
+from depth_nodes.ros.params import (
+    IMAGE_TRANSPORT,
+    THREADS,
+    NodeParameters,
+    ParamSpec,
+)
 from depth_nodes.ros.transport import image_pixels, is_compressed
 from depth_nodes.ros.workers import use_threads
 
@@ -61,11 +66,13 @@ PARAMETERS = [
               '0 bilinear, 1 edge-aware, 2 edge-aware weighted (as 1 here), 3 VNG (8-bit '
               'only; 16-bit mosaics use edge-aware)', min(DEBAYER_METHODS),
               max(DEBAYER_METHODS)),
-    ParamSpec('threads', 1, 'Threads of this node\'s OpenCV and numba work; 0 (or more '
-              'than the cores): every core. '
-              'A frame takes 5 - 20 ms here; under load a second thread mostly spins '
-              'waiting for the first (see the README, bench --live)', 0, 1024),
+    THREADS,
 ]
+
+
+def _models(info_msg: CameraInfo) -> tuple[CameraModel, CameraModel]:
+    model = camera_info_to_model(info_msg)
+    return model, model.binned()
 
 
 class RectifyNode(DepthNode):
@@ -77,26 +84,13 @@ class RectifyNode(DepthNode):
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS)
         self.rectifier = Rectifier()
-        self._info_key: tuple[Any, ...] | None = None
-        self._models: tuple[CameraModel, CameraModel]
+        # the camera model of a CameraInfo and of the image it delivers (binning, ROI)
+        self._calibration = InfoCache(_models)
         self.pub_rect = self.add_output(Image, 'image_rect')
         self.pub_rect_color = self.add_output(Image, 'image_rect_color')
         self.add_synced_inputs([(Image, 'image', self.params.values['image_transport']),
                                 (CameraInfo, 'camera_info')], self.on_frame,
                                queue_size=self.params.values['queue_size'])
-
-    def _calibration(self, info_msg: CameraInfo) -> tuple[CameraModel, CameraModel]:
-        """The camera model of ``info_msg`` and of the image it delivers, converted and
-        validated only when the CameraInfo content changes (drivers resend the same one)."""
-        key = (info_msg.width, info_msg.height, info_msg.distortion_model,
-               tuple(info_msg.k), tuple(info_msg.d), tuple(info_msg.r), tuple(info_msg.p),
-               info_msg.binning_x, info_msg.binning_y, info_msg.roi.x_offset,
-               info_msg.roi.y_offset, info_msg.roi.width, info_msg.roi.height)
-        if key != self._info_key:
-            model = camera_info_to_model(info_msg)
-            self._models = (model, model.binned())
-            self._info_key = key
-        return self._models
 
     def _size_mismatch(self, width: int, height: int, model: CameraModel,
                        delivered: CameraModel) -> None:
@@ -118,7 +112,7 @@ class RectifyNode(DepthNode):
                       f'supported (supported: {", ".join(READABLE_ENCODINGS)})')
             return
         try:
-            model, delivered = self._calibration(info_msg)
+            model, delivered = self._calibration.get(info_msg)
         except CalibrationError as exc:
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
             return

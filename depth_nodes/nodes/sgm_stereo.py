@@ -68,6 +68,7 @@ from depth_nodes.ros.params import (
     NodeParameters,
     ParamSpec,
     specs_from,
+    synchroniser_specs,
 )
 from depth_nodes.ros.workers import OrderedWorkers, use_threads
 
@@ -113,14 +114,7 @@ def _default(name: str) -> Any:
 
 PARAMETERS = [
     IMAGE_TRANSPORT,
-    ParamSpec('queue_size', 5, 'Synchroniser queue of the four inputs', 1, 1000,
-              read_only=True),
-    ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
-              'instead of exact stamps', read_only=True),
-    ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
-              'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
-    ParamSpec('use_system_default_qos', False, 'Subscribe with the system default QoS '
-              '(reliable) instead of sensor data QoS', read_only=True),
+    *synchroniser_specs('the four inputs'),
     ParamSpec('stereo_algorithm', CENSUS_SGM, 'Matcher: ' + ', '.join(
         f'{code} {name}' for code, name in ALGORITHMS.items()) + ' (0 and 1 as '
         'stereo_image_proc; a node started with 0 or 1 takes stereo_image_proc\'s '

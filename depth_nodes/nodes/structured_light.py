@@ -34,85 +34,67 @@ from __future__ import annotations
 
 import sys
 import time
-from collections import OrderedDict
 from collections.abc import Mapping
-from pathlib import Path
+from dataclasses import fields
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 
 from depth_nodes.core.structured_light import (
-    AXES,
-    MODES,
     PatternSet,
     ProjectorGeometry,
     camera_rays,
     depth_to_points,
     speckle_depth,
 )
-from depth_nodes.core.structured_light.framing import SequenceAssembler, parse_tag
+from depth_nodes.core.structured_light.framing import (
+    Drop,
+    SequenceAssembler,
+    TagPairer,
+    parse_tag,
+)
+from depth_nodes.core.structured_light.params import StructuredLightParams
 from depth_nodes.core.structured_light.reconstruct import reconstruct
-from depth_nodes.errors import CalibrationError, ConfigError, MessageError
-from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.core.structured_light.speckle import SpeckleReference
+from depth_nodes.errors import (
+    ArgumentError,
+    CalibrationError,
+    ConfigError,
+    InputFileError,
+    MessageError,
+)
+from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
+from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec, specs_from
 from depth_nodes.ros.pointcloud import build_pointcloud
 from depth_nodes.ros.sync import stamp_to_ns
 
 
-def _one_of(options: tuple[str, ...]) -> Any:
-    return lambda v: None if v in options else f'must be one of {", ".join(options)}'
-
-
-def _odd(value: int) -> str | None:
-    return None if value % 2 == 1 else 'must be odd'
-
-
 def _cross_check(values: Mapping[str, Any]) -> str | None:
-    if values['depth_min'] >= values['depth_max']:
-        return (f'depth_min ({values["depth_min"]}) must be smaller than depth_max '
-                f'({values["depth_max"]})')
+    try:
+        _settings(values)
+    except ArgumentError as exc:
+        return str(exc)
     return None
 
 
+def _settings(values: Mapping[str, Any]) -> StructuredLightParams:
+    return StructuredLightParams(**{name: values[name] for name in SETTINGS}).validate()
+
+
+#: The decoder's parameters, declared from StructuredLightParams' settings.
+SETTINGS = tuple(f.name for f in fields(StructuredLightParams))
+
 PARAMETERS = [
     IMAGE_TRANSPORT,
-    ParamSpec('mode', 'phase', 'Pattern set: gray, phase (Gray code + N-step phase shift), '
-              'opencv (cv2.structured_light.GrayCodePattern order + black, white) or speckle',
-              check=_one_of(MODES)),
-    ParamSpec('axes', 'columns', 'Coded projector axes: columns (ray-plane) or both (ray-ray)',
-              check=_one_of(AXES)),
-    ParamSpec('phase_steps', 4, 'Phase steps N of the phase mode', min_value=3,
-              max_value=64),
-    ParamSpec('phase_period', 16.0, 'Phase period in projector pixels', min_value=2.0,
-              max_value=4096.0),
-    ParamSpec('shadow_threshold', 12.0, 'Minimum white - black (grey levels) of a lit pixel',
-              min_value=0.0, max_value=65535.0),
-    ParamSpec('min_modulation', 4.0, 'Minimum phase amplitude (grey levels); scale of the '
-              'confidence', min_value=0.0, max_value=65535.0),
-    ParamSpec('depth_min', 0.2, 'Nearest depth kept (m)', min_value=0.01, max_value=1000.0),
-    ParamSpec('depth_max', 5.0, 'Farthest depth kept (m)', min_value=0.01, max_value=1000.0),
-    ParamSpec('speckle_reference', '', 'Speckle mode: image file (PNG, 8/16-bit grey) of '
-              'the dot pattern on a plane at speckle_reference_depth'),
-    ParamSpec('speckle_reference_depth', 1.0, 'Depth of the speckle reference plane (m)',
-              min_value=0.01, max_value=1000.0),
-    ParamSpec('speckle_window', 11, 'Speckle correlation window side (odd)', min_value=3,
-              max_value=31, check=_odd),
-    ParamSpec('speckle_min_score', 0.5, 'Minimum ZNCC of a speckle match', min_value=-1.0,
-              max_value=1.0),
+    *specs_from(StructuredLightParams, SETTINGS),
     ParamSpec('avoid_point_cloud_padding', False, 'Pack points2 to 12 bytes per point'),
     ParamSpec('queue_size', 5, 'Frames held while their camera_info or pattern tag is '
               'missing', min_value=1, max_value=1000, read_only=True),
-    ParamSpec('max_sequence_frames', 128, 'Longest sequence held; a tag announcing more is '
-              'refused (pattern_count_too_large)', min_value=2, max_value=4096),
-    ParamSpec('sequence_timeout', 5.0, 'Seconds without a frame after which an incomplete '
-              'sequence is abandoned (sequence_incomplete); 0: never', min_value=0.0,
-              max_value=3600.0),
 ]
 
 
@@ -127,14 +109,11 @@ class StructuredLightNode(DepthNode):
         self.queue_size = int(self.params.values['queue_size'])
         self.assembler = SequenceAssembler()
         self.projector_info: CameraInfo | None = None
-        self._tags: OrderedDict[int, Header] = OrderedDict()
-        self._waiting: OrderedDict[int, tuple[Image, CameraInfo]] = OrderedDict()
+        self.pairer = TagPairer(self.queue_size)
         self._layout: tuple[Any, ...] | None = None
-        self._geometry_key: tuple[Any, ...] | None = None
-        self._geometry: ProjectorGeometry
+        self._geometry = InfoCache(_geometry)
         self._rays: NDArray[np.float64]
-        self._reference_key: tuple[Any, ...] | None = None
-        self._reference: NDArray[np.float32]
+        self.reference = SpeckleReference()
         self.pub_depth = self.add_output(Image, 'depth')
         self.pub_points = self.add_output(PointCloud2, 'points2')
         self.pub_confidence = self.add_output(Image, 'confidence')
@@ -157,35 +136,24 @@ class StructuredLightNode(DepthNode):
 
     def on_tag(self, msg: Header) -> None:
         """A pattern tag: release its waiting frame, or keep it for the frame to come."""
-        stamp = stamp_to_ns(msg.stamp)
-        if stamp in self._waiting:
-            for older in [s for s in self._waiting if s < stamp]:
-                self._waiting.pop(older)
-                self.drop('pattern_tag_missing', f'frame at stamp {older} ns never got its '
-                          f'pattern tag (a later frame did)')
-            self._sequence_frame(*self._waiting.pop(stamp), msg)
-            return
-        self._tags[stamp] = msg
-        while len(self._tags) > 2 * self.queue_size:
-            old, tag = self._tags.popitem(last=False)
-            self.drop('pattern_tag_unmatched', f'pattern tag {tag.frame_id!r} at stamp {old} '
-                      f'ns never got its image')
+        frame, drops = self.pairer.add_tag(stamp_to_ns(msg.stamp), msg)
+        self._drops(drops)
+        if frame is not None:
+            self._sequence_frame(*frame, msg)
 
     def on_frame(self, image: Image, info: CameraInfo) -> None:
         """An image with its camera_info: speckle now, or one frame of a sequence."""
         if self.params.values['mode'] == 'speckle':
             self._speckle(image, info)
             return
-        stamp = stamp_to_ns(image.header.stamp)
-        tag = self._tags.pop(stamp, None)
+        tag, drops = self.pairer.add_frame(stamp_to_ns(image.header.stamp), (image, info))
+        self._drops(drops)
         if tag is not None:
             self._sequence_frame(image, info, tag)
-            return
-        self._waiting[stamp] = (image, info)
-        while len(self._waiting) > self.queue_size:
-            old, _ = self._waiting.popitem(last=False)
-            self.drop('pattern_tag_missing', f'frame at stamp {old} ns has no pattern tag '
-                      f'(is the projector driver publishing "pattern"?)')
+
+    def _drops(self, drops: list[Drop]) -> None:
+        for d in drops:
+            self.drop(d.reason, d.detail, count=d.count)
 
     def check_sequence_timeout(self, now: float | None = None) -> None:
         """Abandon an incomplete sequence whose last frame came ``sequence_timeout`` s
@@ -206,14 +174,7 @@ class StructuredLightNode(DepthNode):
             self.drop('sequence_incomplete', f'{self.assembler.pending} frame(s) of a '
                       'sequence held when the stream ended')
             self.assembler.reset()
-        if self._waiting:
-            self.drop('pattern_tag_missing', f'{len(self._waiting)} frame(s) without their '
-                      'pattern tag when the stream ended', count=len(self._waiting))
-            self._waiting.clear()
-        if self._tags:
-            self.drop('pattern_tag_unmatched', f'{len(self._tags)} pattern tag(s) without '
-                      'their image when the stream ended', count=len(self._tags))
-            self._tags.clear()
+        self._drops(self.pairer.finish())
 
     # ---------------------------------------------------------------- sequences
 
@@ -223,9 +184,7 @@ class StructuredLightNode(DepthNode):
             self.drop('no_projector_info', 'no projector/camera_info received yet')
             return None
         try:
-            pattern_set = PatternSet(values['mode'], int(proj.width), int(proj.height),
-                                     values['axes'], values['phase_steps'],
-                                     values['phase_period'])
+            pattern_set = _settings(values).pattern_set(int(proj.width), int(proj.height))
         except ConfigError as exc:
             self.drop('bad_pattern_set', str(exc))
             return None
@@ -260,8 +219,7 @@ class StructuredLightNode(DepthNode):
         expected = pattern_set.count if pattern_set is not None else tag.count
         self._last_sequence_frame = time.monotonic()
         frames, drops = self.assembler.add(tag, (grey, image.header, info), expected)
-        for d in drops:
-            self.drop(d.reason, d.detail)
+        self._drops(drops)
         if frames is None:
             return
         pattern_set = pattern_set or self._pattern_set(values)
@@ -281,18 +239,12 @@ class StructuredLightNode(DepthNode):
         if proj is None:
             self.drop('no_projector_info', 'no projector/camera_info received yet')
             return None
-        key = tuple(_info_key(m) for m in (info, proj))
-        if key != self._geometry_key:
-            try:
-                camera = camera_info_to_model(info).binned()
-                projector = camera_info_to_model(proj)
-                self._geometry = ProjectorGeometry.from_models(camera, projector)
-            except CalibrationError as exc:
-                self.drop('bad_calibration', str(exc))
-                return None
-            self._rays = camera_rays(camera)
-            self._geometry_key = key
-        return self._geometry
+        try:
+            geometry, self._rays = self._geometry.get(info, proj)
+        except CalibrationError as exc:
+            self.drop('bad_calibration', str(exc))
+            return None
+        return geometry
 
     def _decode(self, frames: list[tuple[Any, Header, CameraInfo]], pattern_set: PatternSet,
                 values: Mapping[str, Any]) -> None:
@@ -320,33 +272,6 @@ class StructuredLightNode(DepthNode):
 
     # ---------------------------------------------------------------- speckle
 
-    def _load_reference(self, path: str, shape: tuple[int, ...]) -> NDArray[np.float32] | None:
-        if not path:
-            self.drop('speckle_reference', 'speckle mode needs the speckle_reference '
-                      'parameter: an image file of the pattern on the reference plane')
-            return None
-        p = Path(path)
-        try:
-            key = (path, p.stat().st_mtime_ns)
-        except OSError as exc:
-            self.drop('speckle_reference', f'cannot read speckle_reference {path!r}: '
-                      f'{exc.strerror}')
-            return None
-        if key != self._reference_key:
-            ref = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-            if ref is None or ref.ndim != 2:
-                self.drop('speckle_reference', f'speckle_reference {path!r} is not a '
-                          'one-channel image file OpenCV can read')
-                return None
-            self._reference = ref.astype(np.float32)
-            self._reference_key = key
-        if self._reference.shape != shape:
-            self.drop('speckle_reference', f'speckle_reference {path!r} is '
-                      f'{self._reference.shape[1]}x{self._reference.shape[0]}, images are '
-                      f'{shape[1]}x{shape[0]}')
-            return None
-        return self._reference
-
     def _speckle(self, image: Image, info: CameraInfo) -> None:
         values = self.params.values
         grey = self._grey(image)
@@ -360,8 +285,10 @@ class StructuredLightNode(DepthNode):
                       f'camera_info describes {geometry.camera.width}x'
                       f'{geometry.camera.height}')
             return
-        ref = self._load_reference(values['speckle_reference'], grey.shape)
-        if ref is None:
+        try:
+            ref = self.reference.load(values['speckle_reference'], grey.shape)
+        except InputFileError as exc:
+            self.drop('speckle_reference', str(exc))
             return
         try:
             depth, conf = speckle_depth(
@@ -385,10 +312,12 @@ class StructuredLightNode(DepthNode):
         self.pub_confidence.publish(array_to_image(confidence, '32FC1', header))
 
 
-def _info_key(msg: CameraInfo) -> tuple[Any, ...]:
-    return (msg.width, msg.height, msg.distortion_model, tuple(msg.k), tuple(msg.d),
-            tuple(msg.r), tuple(msg.p), msg.binning_x, msg.binning_y, msg.roi.x_offset,
-            msg.roi.y_offset, msg.roi.width, msg.roi.height)
+def _geometry(info: CameraInfo, projector_info: CameraInfo
+              ) -> tuple[ProjectorGeometry, NDArray[np.float64]]:
+    """The camera-projector geometry and the camera's rays (a CameraInfo cache's value)."""
+    camera = camera_info_to_model(info).binned()
+    geometry = ProjectorGeometry.from_models(camera, camera_info_to_model(projector_info))
+    return geometry, camera_rays(camera)
 
 
 def main(args: list[str] | None = None) -> None:

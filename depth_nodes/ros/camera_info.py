@@ -6,7 +6,8 @@ Works on rclpy messages and on rosbags messages (same lower-case field names: ``
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 from sensor_msgs.msg import CameraInfo
@@ -14,6 +15,8 @@ from std_msgs.msg import Header
 
 from depth_nodes.core.camera import CameraModel, StereoModel
 from depth_nodes.errors import CalibrationError, UncalibratedError
+
+T = TypeVar('T')
 
 
 def _matrix(msg: Any, name: str, size: int) -> np.ndarray:
@@ -112,23 +115,51 @@ def stereo_model_from_infos(left_msg: Any, right_msg: Any) -> StereoModel:
     return StereoModel(left, right)
 
 
-def _info_key(msg: Any) -> tuple[Any, ...]:
+def info_key(msg: Any) -> tuple[Any, ...]:
     """Everything of a CameraInfo that the camera model depends on, hashable."""
     return (msg.width, msg.height, msg.distortion_model, tuple(msg.k), tuple(msg.d),
             tuple(msg.r), tuple(msg.p), msg.binning_x, msg.binning_y, msg.roi.x_offset,
             msg.roi.y_offset, msg.roi.width, msg.roi.height)
 
 
-class StereoInfoCache:
-    """The stereo model of a left/right CameraInfo pair, converted and validated again only
-    when either message's content changes (drivers resend the same calibration every frame).
+class InfoCache(Generic[T]):
+    """A value built from CameraInfo messages (a model, rectification maps, a projector
+    geometry), built again only when a message's content changes: drivers resend the same
+    calibration with every frame.
 
-    Models are those of the delivered images (binning and ROI applied).
+    Args:
+        build: Makes the value from the messages; what it raises reaches the caller, and
+            the next call tries again.
+    """
+
+    def __init__(self, build: Callable[..., T]) -> None:
+        self._build = build
+        self._key: tuple[Any, ...] | None = None
+        self._value: T
+
+    def get(self, *msgs: Any) -> T:
+        """The value for ``msgs`` (CameraInfos, rclpy or rosbags)."""
+        key = tuple(info_key(m) for m in msgs)
+        if key != self._key:
+            self._value = self._build(*msgs)
+            self._key = key
+        return self._value
+
+
+def _calibrated_stereo(left_msg: Any, right_msg: Any) -> StereoModel:
+    if not np.any(np.asarray(left_msg.k)) or not np.any(np.asarray(right_msg.k)):
+        raise UncalibratedError('a camera_info has K all zero: the stereo pair is not '
+                                'calibrated')
+    return stereo_model_from_infos(left_msg, right_msg)
+
+
+class StereoInfoCache(InfoCache[StereoModel]):
+    """The stereo model of a left/right CameraInfo pair (see :class:`InfoCache`); models
+    are those of the delivered images (binning and ROI applied).
     """
 
     def __init__(self) -> None:
-        self._key: tuple[Any, ...] | None = None
-        self._model: StereoModel | None = None
+        super().__init__(_calibrated_stereo)
 
     def model(self, left_msg: Any, right_msg: Any) -> StereoModel:
         """The StereoModel of the pair.
@@ -137,11 +168,4 @@ class StereoInfoCache:
             UncalibratedError: A K is all zero.
             CalibrationError: Anything else makes the pair unusable.
         """
-        key = (_info_key(left_msg), _info_key(right_msg))
-        if key != self._key or self._model is None:
-            if not np.any(np.asarray(left_msg.k)) or not np.any(np.asarray(right_msg.k)):
-                raise UncalibratedError('a camera_info has K all zero: the stereo pair is not '
-                                        'calibrated')
-            self._model = stereo_model_from_infos(left_msg, right_msg)
-            self._key = key
-        return self._model
+        return self.get(left_msg, right_msg)

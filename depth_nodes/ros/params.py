@@ -172,3 +172,28 @@ IMAGE_TRANSPORT = ParamSpec(
     'image_transport', 'raw', 'How the camera images arrive: raw (sensor_msgs/Image on the '
     'topic), compressed (sensor_msgs/CompressedImage, JPEG or PNG, on <topic>/compressed) or '
     'compressedDepth (<topic>/compressedDepth)', read_only=True, check=one_of(TRANSPORTS))
+
+
+def synchroniser_specs(inputs: str, *, qos: bool = True) -> list[ParamSpec]:
+    """The synchronisation parameters of a node with several inputs, named and ranged as
+    image_pipeline's nodes have them (``inputs`` names them for the description)."""
+    specs = [
+        ParamSpec('queue_size', 5, f'Synchroniser queue of {inputs}', 1, 1000,
+                  read_only=True),
+        ParamSpec('approximate_sync', False, 'Match inputs by the ApproximateTime policy '
+                  'instead of exact stamps', read_only=True),
+        ParamSpec('approximate_sync_tolerance_seconds', 0.0, 'Largest stamp spread of a set '
+                  'with approximate_sync (0: no limit)', 0.0, 10.0, read_only=True),
+    ]
+    if qos:
+        specs.append(ParamSpec('use_system_default_qos', False, 'Subscribe with the system '
+                               'default QoS (reliable) instead of sensor data QoS',
+                               read_only=True))
+    return specs
+
+
+#: The ``threads`` parameter of a node whose frame takes a few ms (the matcher has its own).
+THREADS = ParamSpec('threads', 1, "Threads of this node's OpenCV and numba work; 0 (or more "
+                    'than the cores): every core. A frame takes 5 - 20 ms here; under load a '
+                    'second thread mostly spins waiting for the first (see the README, bench '
+                    '--live)', 0, 1024)

@@ -16,12 +16,13 @@ sequence. The companion is matched to its image by exact stamp.
 :class:`SequenceAssembler` accepts frames in arrival order and returns a sequence only
 when frames ``0 .. count - 1`` of one sequence number arrived in order, each exactly once.
 Anything else drops the partial sequence with a reason; frames are then skipped until the
-next index 0 (resynchronisation).
+next index 0 (resynchronisation). :class:`TagPairer` pairs each image with its tag before.
 """
 
 from __future__ import annotations
 
 import re
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,6 +38,9 @@ REPEATED = 'sequence_repeated_frame'
 OUT_OF_ORDER = 'sequence_out_of_order'
 COUNT_MISMATCH = 'pattern_count_mismatch'
 RESYNC = 'sequence_resync'
+#: Drop reasons the tag pairer reports.
+TAG_MISSING = 'pattern_tag_missing'
+TAG_UNMATCHED = 'pattern_tag_unmatched'
 
 
 @dataclass(frozen=True)
@@ -68,10 +72,69 @@ def parse_tag(text: str) -> PatternTag:
 
 @dataclass
 class Drop:
-    """A reason to drop (a sequence or a skipped frame) and its explanation."""
+    """A reason to drop (a sequence or a skipped frame), its explanation and how many
+    frames it stands for."""
 
     reason: str
     detail: str
+    count: int = 1
+
+
+class TagPairer:
+    """Pairs camera frames with their pattern tags (the projector driver's
+    std_msgs/Header with the frame's stamp), whichever arrives first.
+
+    At most ``queue_size`` frames wait for their tag and ``2 * queue_size`` tags for their
+    frame; what falls out is a drop (``pattern_tag_missing``, ``pattern_tag_unmatched``),
+    as is a frame whose tag never came while a later frame's did.
+    """
+
+    def __init__(self, queue_size: int) -> None:
+        self.queue_size = queue_size
+        self._tags: OrderedDict[int, Any] = OrderedDict()
+        self._frames: OrderedDict[int, Any] = OrderedDict()
+
+    def add_tag(self, stamp: int, tag: Any) -> tuple[Any | None, list[Drop]]:
+        """A tag at ``stamp`` (ns): its waiting frame, if any, and the drops it caused."""
+        if stamp in self._frames:
+            drops = [Drop(TAG_MISSING, f'frame at stamp {older} ns never got its pattern '
+                          'tag (a later frame did)') for older in self._frames if older < stamp]
+            for older in [s for s in self._frames if s < stamp]:
+                del self._frames[older]
+            return self._frames.pop(stamp), drops
+        self._tags[stamp] = tag
+        drops = []
+        while len(self._tags) > 2 * self.queue_size:
+            old, dropped = self._tags.popitem(last=False)
+            drops.append(Drop(TAG_UNMATCHED, f'pattern tag {getattr(dropped, "frame_id", "")!r} '
+                              f'at stamp {old} ns never got its image'))
+        return None, drops
+
+    def add_frame(self, stamp: int, frame: Any) -> tuple[Any | None, list[Drop]]:
+        """A frame at ``stamp`` (ns): its tag, if it came first, and the drops it caused."""
+        tag = self._tags.pop(stamp, None)
+        if tag is not None:
+            return tag, []
+        self._frames[stamp] = frame
+        drops = []
+        while len(self._frames) > self.queue_size:
+            old, _ = self._frames.popitem(last=False)
+            drops.append(Drop(TAG_MISSING, f'frame at stamp {old} ns has no pattern tag (is '
+                              'the projector driver publishing "pattern"?)'))
+        return None, drops
+
+    def finish(self) -> list[Drop]:
+        """The stream ended: what is still waiting, as drops; the pairer is empty after."""
+        drops = []
+        if self._frames:
+            drops.append(Drop(TAG_MISSING, f'{len(self._frames)} frame(s) without their '
+                              'pattern tag when the stream ended', len(self._frames)))
+        if self._tags:
+            drops.append(Drop(TAG_UNMATCHED, f'{len(self._tags)} pattern tag(s) without '
+                              'their image when the stream ended', len(self._tags)))
+        self._frames.clear()
+        self._tags.clear()
+        return drops
 
 
 class SequenceAssembler:

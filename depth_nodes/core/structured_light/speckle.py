@@ -17,12 +17,13 @@ per-pixel definition the tests compare against.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.errors import ConfigError
+from depth_nodes.errors import ConfigError, InputFileError
 
 F32 = NDArray[np.float32]
 #: Windows with a standard deviation below this (grey levels) have no usable texture.
@@ -199,3 +200,39 @@ def speckle_depth(image: NDArray[np.generic], reference: NDArray[np.generic], *,
         depth[(depth < depth_min) | (depth > depth_max)] = np.nan
     conf = np.where(np.isfinite(depth), np.clip(np.nan_to_num(score), 0, 1), 0)
     return depth, conf.astype(np.float32)
+
+
+class SpeckleReference:
+    """The speckle reference image of a file, read again only when the file changes."""
+
+    def __init__(self) -> None:
+        self._key: tuple[str, int] | None = None
+        self._image: F32 = np.zeros((0, 0), np.float32)
+
+    def load(self, path: str, shape: tuple[int, ...]) -> F32:
+        """The reference at ``path`` as float32, checked against the images' ``shape``.
+
+        Raises:
+            InputFileError: No path, a file that cannot be read or is not one-channel, or
+                a size other than the images'.
+        """
+        if not path:
+            raise InputFileError('speckle mode needs the speckle_reference parameter: an '
+                                 'image file of the pattern on the reference plane')
+        file = Path(path)
+        try:
+            key = (path, file.stat().st_mtime_ns)
+        except OSError as exc:
+            raise InputFileError(f'cannot read speckle_reference {path!r}: '
+                                 f'{exc.strerror}') from None
+        if key != self._key:
+            image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+            if image is None or image.ndim != 2:
+                raise InputFileError(f'speckle_reference {path!r} is not a one-channel image '
+                                     'file OpenCV can read')
+            self._image = image.astype(np.float32)
+            self._key = key
+        if self._image.shape != shape:
+            raise InputFileError(f'speckle_reference {path!r} is {self._image.shape[1]}x'
+                                 f'{self._image.shape[0]}, images are {shape[1]}x{shape[0]}')
+        return self._image
