@@ -12,7 +12,7 @@ from setuptools import find_packages, setup
 PACKAGE = 'depth_nodes'
 
 # One console script per node, so `ros2 run depth_nodes <node>` works; named like the node's
-# plugin in depth_nodes/ros/graph.py::NODE_PLUGINS.
+# plugin in depth_nodes/nodes/__init__.py::NODE_PLUGINS.
 NODE_SCRIPTS = [
     'rectify = depth_nodes.nodes.rectify:main',
     'sgm_stereo = depth_nodes.nodes.sgm_stereo:main',

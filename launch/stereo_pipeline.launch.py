@@ -2,7 +2,7 @@
 
 For users with a full ROS 2 install (`ros2 launch depth_nodes stereo_pipeline.launch.py`). It reads
 the graph description that `depth-nodes pipeline` and `depth-nodes process` run, through
-the package's own ``depth_nodes.ros.launching``, so the three cannot drift apart. Launch
+the package's own ``depth_nodes.graph.launching``, so the three cannot drift apart. Launch
 arguments (all optional): params_file (a stereo_image_proc parameter file works unchanged),
 namespace, left, right, image (a camera driver's names) and image_transport, e.g.
 `ros2 launch depth_nodes stereo_pipeline.launch.py namespace:=/camera image_transport:=compressed
@@ -17,7 +17,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from depth_nodes.ros.launching import LAUNCH_ARGUMENTS, launch_nodes
+from depth_nodes.graph.launching import LAUNCH_ARGUMENTS, launch_nodes
 
 
 def _nodes(context, *args, **kwargs):

@@ -4,7 +4,7 @@ process per node.
 For users with a full ROS 2 install
 (`ros2 launch depth_nodes structured_light_pipeline.launch.py`). It reads the graph
 description that `depth-nodes pipeline` and `depth-nodes process` run, through the
-package's own ``depth_nodes.ros.launching``, so the three cannot drift apart. Launch
+package's own ``depth_nodes.graph.launching``, so the three cannot drift apart. Launch
 arguments (all optional): params_file, namespace, left, right, image and image_transport,
 as in the stereo launch file. The speckle node's speckle_reference in its config is
 relative to the repository root: from anywhere else, give it an absolute path there.
@@ -18,7 +18,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from depth_nodes.ros.launching import LAUNCH_ARGUMENTS, launch_nodes
+from depth_nodes.graph.launching import LAUNCH_ARGUMENTS, launch_nodes
 
 
 def _nodes(context, *args, **kwargs):

@@ -151,9 +151,9 @@ def _replay_bundled(tmp_path_factory: pytest.TempPathFactory,
     """Every bundled stereo bag through config/stereo_pipeline.yaml (rectify -> sgm_stereo
     -> cross_check -> point_cloud), the SGM node's parameters overridden by ``sgm`` and its
     disparity window set per bag, scored by eval: ``{bag: (output bag, EvalReport)}``."""
-    from depth_nodes.ros.graph import load_graph_config
-    from depth_nodes.tools.evaluate import evaluate_bag
-    from depth_nodes.tools.process import process_bag
+    from depth_nodes.graph.description import load_graph_config
+    from depth_nodes.tools.bags.process import process_bag
+    from depth_nodes.tools.evaluation.evaluate import evaluate_bag
 
     config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
     out = {}
@@ -191,7 +191,7 @@ REAL_DATA = TEST_DIR / 'data' / 'middlebury2003'
 
 def import_real_pair(name: str, out: Path) -> Path:
     """Import a pair of test/data as a bag (colour images, ground truth of both views)."""
-    from depth_nodes.tools.pairs import PairSource, import_pair
+    from depth_nodes.tools.bags.pairs import PairSource, import_pair
 
     folder = REAL_DATA / name
     import_pair(PairSource(folder / 'im2.png', folder / 'im6.png',
@@ -204,9 +204,9 @@ def _replay_real(tmp_path_factory: pytest.TempPathFactory,
                  sgm: dict[str, Any]) -> dict[str, tuple[Path, Any]]:
     """Every real pair through the shipped stereo graph with a 64-disparity window (and
     ``sgm`` overriding the matcher's parameters), scored by eval."""
-    from depth_nodes.ros.graph import load_graph_config
-    from depth_nodes.tools.evaluate import evaluate_bag
-    from depth_nodes.tools.process import process_bag
+    from depth_nodes.graph.description import load_graph_config
+    from depth_nodes.tools.bags.process import process_bag
+    from depth_nodes.tools.evaluation.evaluate import evaluate_bag
 
     config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
     out = {}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from depth_nodes.core.metrics import optimal_auc
-from depth_nodes.tools.evaluate import EvalReport
+from depth_nodes.tools.evaluation.evaluate import EvalReport
 
 RAW, CHECKED = '/stereo/disparity', '/stereo/disparity_checked'
 DEFAULTS = 'opencv SGBM MODE_SGBM, stereo_image_proc defaults'

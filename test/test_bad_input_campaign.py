@@ -2,7 +2,7 @@
 
 Five node processes (as the launch file starts them), `depth-nodes play` and
 `depth-nodes record` in their own processes, all over DDS. The campaign bag
-(depth_nodes.tools.campaign) puts a hostile stamp between every two good frames. Checked:
+(depth_nodes.tools.evaluation.campaign) puts a hostile stamp between every two good frames. Checked:
 no node dies; each hostile message is counted under its reason by the node that first
 sees it (read from the /diagnostics the nodes published, recorded in the bag) and logged;
 every good frame, and no hostile one, comes out as disparity, checked disparity, depth and
@@ -28,11 +28,11 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 from conftest import REPO, run_cli
-from depth_nodes.ros.graph import load_graph_config
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.bench_live import warm_up
-from depth_nodes.tools.campaign import START_NS, Campaign, write_bad_input_bag
-from depth_nodes.tools.live_graph import GraphProcesses, StereoFeeder, load_stereo_frames
+from depth_nodes.graph.description import load_graph_config
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.bench.live import warm_up
+from depth_nodes.tools.evaluation.campaign import START_NS, Campaign, write_bad_input_bag
+from depth_nodes.tools.live.processes import GraphProcesses, StereoFeeder, load_stereo_frames
 
 pytestmark = pytest.mark.ros
 

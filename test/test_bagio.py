@@ -11,7 +11,7 @@ from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.errors import BagError
-from depth_nodes.tools.bagio import BagReader, BagWriter, message_class, message_type_name
+from depth_nodes.tools.bags.io import BagReader, BagWriter, message_class, message_type_name
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 

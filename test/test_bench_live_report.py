@@ -3,8 +3,8 @@ benchmark, timed by hand, never by a test)."""
 
 from __future__ import annotations
 
-from depth_nodes.ros.graph import GraphConfig, NodeSpec
-from depth_nodes.tools.bench_live import LiveBench, LiveRun, opencv_graph, opencv_mode
+from depth_nodes.graph.description import GraphConfig, NodeSpec
+from depth_nodes.tools.bench.live import LiveBench, LiveRun, opencv_graph, opencv_mode
 
 
 def _run(received: int, fps: float) -> LiveRun:

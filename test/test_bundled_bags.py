@@ -11,8 +11,8 @@ from conftest import REPO
 from depth_nodes.core.rectify import rectify_image
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.image import image_to_array, to_gray
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.generate import PRESETS, config_from_bag_metadata, write_stereo_bag
+from depth_nodes.tools.bags.generate import PRESETS, config_from_bag_metadata, write_stereo_bag
+from depth_nodes.tools.bags.io import BagReader
 
 BAGS = REPO / 'bags'
 MAX_BAG_MB = 8.0

@@ -12,7 +12,7 @@ from sensor_msgs.msg import CameraInfo
 from conftest import run_cli
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.tools.bagio import BagWriter
+from depth_nodes.tools.bags.io import BagWriter
 
 
 def _good_bag(path: Path) -> None:

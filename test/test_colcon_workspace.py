@@ -30,10 +30,10 @@ from sensor_msgs.msg import Image
 from test_launch_files import PACKAGE, check_launch_file, node_scripts
 
 from conftest import REPO, interrupt
+from depth_nodes.graph.description import load_params_file
 from depth_nodes.nodes.rectify import PARAMETERS as RECTIFY_PARAMETERS
-from depth_nodes.ros.graph import load_params_file
 from depth_nodes.ros.image import image_to_array, to_gray
-from depth_nodes.tools.bagio import BagReader
+from depth_nodes.tools.bags.io import BagReader
 
 COLCON = Path(sys.executable).with_name('colcon')
 #: What colcon and setuptools would write into the source tree if run from it.

@@ -31,8 +31,8 @@ from depth_nodes.nodes.cross_check import CrossCheckNode
 from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.evaluate import EvalReport
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.evaluation.evaluate import EvalReport
 
 pytestmark = pytest.mark.ros
 

@@ -15,13 +15,13 @@ from rclpy.context import Context
 from sensor_msgs.msg import CompressedImage
 
 from conftest import REPO, run_cli
+from depth_nodes.graph.description import create_nodes, load_graph_config, rename_cameras
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.graph import create_nodes, load_graph_config, rename_cameras
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.convert import ConvertOptions, convert_bag
-from depth_nodes.tools.evaluate import evaluate_bag
-from depth_nodes.tools.pipeline import compose_remappings, user_remappings
-from depth_nodes.tools.process import process_bag
+from depth_nodes.tools.bags.convert import ConvertOptions, convert_bag
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.bags.process import process_bag
+from depth_nodes.tools.evaluation.evaluate import evaluate_bag
+from depth_nodes.tools.live.pipeline import compose_remappings, user_remappings
 
 STEREO = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
 RAW = '/stereo/disparity'
@@ -125,7 +125,7 @@ def test_side_and_image_names_follow_a_driver(context: Context) -> None:
 def test_a_parameter_file_for_the_graphs_own_names_follows_the_rename() -> None:
     """config/disparity_64.yaml addresses /stereo/sgm_stereo: with --namespace /camera it
     still reaches the moved node (a run that silently kept 128 disparities otherwise)."""
-    from depth_nodes.ros.graph import load_params_file, parameters_for, unmatched_entries
+    from depth_nodes.graph.description import load_params_file, parameters_for, unmatched_entries
 
     config = rename_cameras(STEREO, namespace='/camera')
     params = load_params_file(REPO / 'config' / 'disparity_64.yaml')
@@ -231,7 +231,7 @@ def test_the_live_pipeline_takes_a_driver_bag_with_one_option(tmp_path: Path) ->
 def test_the_hint_names_what_would_feed_the_graph(tmp_path: Path) -> None:
     """A raw transport forced on a compressed bag, and a RealSense-like layout (infra1,
     infra2, image_rect_raw): the error says the options that work."""
-    from depth_nodes.tools.bagio import BagWriter
+    from depth_nodes.tools.bags.io import BagWriter
 
     bag = _driver_bag(tmp_path, 'stereo_qvga_color', codec='jpeg')
     forced = run_cli(['process', str(bag), str(tmp_path / 'o1'), '--namespace', '/camera',

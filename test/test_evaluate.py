@@ -14,8 +14,8 @@ from conftest import run_cli
 from depth_nodes.errors import BagError
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.tools.bagio import BagWriter
-from depth_nodes.tools.evaluate import evaluate_bag
+from depth_nodes.tools.bags.io import BagWriter
+from depth_nodes.tools.evaluation.evaluate import evaluate_bag
 
 H, W, D = 60, 96, 8.0
 N_FRAMES = 2

@@ -13,8 +13,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from conftest import run_cli
 from depth_nodes.sim import StereoSimConfig
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.generate import config_from_bag_metadata, write_stereo_bag
+from depth_nodes.tools.bags.generate import config_from_bag_metadata, write_stereo_bag
+from depth_nodes.tools.bags.io import BagReader
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 CONFIG = StereoSimConfig(width=160, height=120, n_frames=2, seed=5, colour=True,

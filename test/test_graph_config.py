@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import (
+from depth_nodes.graph.description import (
     NodeSpec,
     addressed_parameters,
     load_graph_config,
@@ -15,7 +15,7 @@ from depth_nodes.ros.graph import (
     parameters_for,
     resolve_plugin,
 )
-from depth_nodes.tools.process import default_config_path, select_nodes
+from depth_nodes.tools.bags.process import default_config_path, select_nodes
 
 GOOD = """
 graph:
@@ -125,7 +125,7 @@ def test_unknown_parameter_is_an_error(tmp_path: Path, ros_env: dict[str, str]) 
     import rclpy
     from rclpy.context import Context
 
-    from depth_nodes.ros.graph import instantiate
+    from depth_nodes.graph.description import instantiate
 
     ctx = Context()
     rclpy.init(args=[], context=ctx)

@@ -14,7 +14,7 @@ from depth_nodes.core.camera import CameraModel, write_camera_yaml
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array
-from depth_nodes.tools.bagio import BagReader
+from depth_nodes.tools.bags.io import BagReader
 
 TEDDY = REAL_DATA / 'teddy'
 

@@ -19,7 +19,7 @@ import pytest
 from std_msgs.msg import Header
 
 from conftest import REPO, START_TIMEOUT, graph_env, interrupt, run_cli
-from depth_nodes.tools.introspect import RateWindow, diag_table, summary, to_text
+from depth_nodes.tools.live.introspect import RateWindow, diag_table, summary, to_text
 
 pytestmark = pytest.mark.ros
 

@@ -21,7 +21,8 @@ import pytest
 from rclpy.parameter import Parameter
 
 from conftest import REPO
-from depth_nodes.ros.graph import NODE_PLUGINS, load_graph_config
+from depth_nodes.graph.description import load_graph_config
+from depth_nodes.nodes import NODE_PLUGINS
 
 PACKAGE = 'depth_nodes'
 LAUNCH_FILES = sorted((REPO / 'launch').glob('*.launch.py'))

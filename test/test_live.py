@@ -21,7 +21,7 @@ from std_msgs.msg import Header
 
 from conftest import REPO, run_cli
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.tools.bagio import BagReader, BagWriter
+from depth_nodes.tools.bags.io import BagReader, BagWriter
 
 pytestmark = pytest.mark.ros
 
@@ -143,8 +143,8 @@ def test_a_node_that_ignores_ctrl_c_is_aborted_with_its_stacks_in_its_log(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """GraphProcesses.stop: a process still running after the grace period gets SIGABRT,
     and Python's fault handler (switched on for every node) writes where it stood."""
-    from depth_nodes.ros.graph import GraphConfig
-    from depth_nodes.tools import live_graph
+    from depth_nodes.graph.description import GraphConfig
+    from depth_nodes.tools.live import processes as live_graph
 
     monkeypatch.setattr(live_graph, 'STOP_TIMEOUT_S', 1.0)
     graph = live_graph.GraphProcesses(GraphConfig('hang', []), tmp_path)

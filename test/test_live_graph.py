@@ -31,11 +31,11 @@ from stereo_msgs.msg import DisparityImage
 
 from conftest import REPO, interrupt, run_cli
 from depth_nodes.core.sgm.matcher import SgmMatcher, SgmParams
+from depth_nodes.graph.description import load_graph_config
 from depth_nodes.ros.disparity import read_disparity
-from depth_nodes.ros.graph import load_graph_config
 from depth_nodes.ros.image import image_to_array
 from depth_nodes.ros.pointcloud import read_pointcloud
-from depth_nodes.tools.live_graph import StereoFeeder, StereoFrame, load_stereo_frames
+from depth_nodes.tools.live.processes import StereoFeeder, StereoFrame, load_stereo_frames
 
 pytestmark = pytest.mark.ros
 

@@ -14,7 +14,7 @@ import yaml
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 
 from conftest import REPO, START_TIMEOUT, graph_env, interrupt, run_cli
-from depth_nodes.tools.param import coerce_to_declared, nest, parse_value, to_python
+from depth_nodes.tools.live.param import coerce_to_declared, nest, parse_value, to_python
 
 pytestmark = pytest.mark.ros
 

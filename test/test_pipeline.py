@@ -10,7 +10,7 @@ from rclpy.executors import MultiThreadedExecutor
 
 from conftest import REPO
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import create_nodes, load_graph_config, load_params_file
+from depth_nodes.graph.description import create_nodes, load_graph_config, load_params_file
 
 pytestmark = pytest.mark.ros
 

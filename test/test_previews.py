@@ -1,5 +1,5 @@
 """`eval --previews` on any bag: colour-mapped maps with a colour bar beside the left image,
-for a user's own recording without ground truth too (depth_nodes.tools.previews)."""
+for a user's own recording without ground truth too (depth_nodes.tools.evaluation.previews)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,14 @@ from conftest import run_cli
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.tools.bagio import BagWriter
-from depth_nodes.tools.previews import BAR_WIDTH, MapView, bag_previews, colour, colour_bar
+from depth_nodes.tools.bags.io import BagWriter
+from depth_nodes.tools.evaluation.previews import (
+    BAR_WIDTH,
+    MapView,
+    bag_previews,
+    colour,
+    colour_bar,
+)
 
 H, W = 40, 60
 

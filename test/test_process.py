@@ -12,10 +12,10 @@ from std_msgs.msg import Header
 
 from conftest import run_cli
 from depth_nodes.errors import BagError
-from depth_nodes.ros.graph import GraphConfig, NodeSpec, load_graph_config
+from depth_nodes.graph.description import GraphConfig, NodeSpec, load_graph_config
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.tools.bagio import BagReader, BagWriter
-from depth_nodes.tools.process import process_bag
+from depth_nodes.tools.bags.io import BagReader, BagWriter
+from depth_nodes.tools.bags.process import process_bag
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 RAW = '/stereo/left/image_raw'

@@ -14,14 +14,14 @@ from conftest import REPO
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.rectify import Rectifier, interpolation_flag, rectify_image
 from depth_nodes.errors import CalibrationError
+from depth_nodes.graph.description import load_graph_config
 from depth_nodes.ros.camera_info import camera_info_to_model
-from depth_nodes.ros.graph import load_graph_config
 from depth_nodes.ros.image import image_to_array, to_gray
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.bench import bench_rectify
-from depth_nodes.tools.evaluate import evaluate_bag
-from depth_nodes.tools.process import process_bag
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.bags.process import process_bag
+from depth_nodes.tools.bench.sgm import bench_rectify
+from depth_nodes.tools.evaluation.evaluate import evaluate_bag
 
 BAGS = REPO / 'bags'
 MARGIN = 16  # px left out at the image border, where a remap samples near the raw edge

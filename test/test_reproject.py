@@ -157,7 +157,7 @@ class TestMasks:
         ({'disparity': np.zeros((3, 4, 1), np.float32)}, 'must be a (H, W) array'),
         ({'disparity': np.zeros((3, 4), np.float32)}, 'disparity is 4x3 but the cameras'),
         ({'disparity': np.zeros((150, 200), np.int16)}, 'must be a float array'),
-        ({'min_range': -1.0}, 'must be >= 0'),
+        ({'min_range': -1.0}, 'min_range=-1.0: must be in [0, 1e+06]'),
         ({'min_range': 5.0, 'max_range': 2.0}, 'max_range (2.0) must be >= min_range'),
         ({'confidence': np.zeros((10, 10), np.float32)}, 'confidence must have the disparity'),
     ])

@@ -21,8 +21,8 @@ from conftest import STEREO_RANGES
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.evaluate import EvalReport
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.evaluation.evaluate import EvalReport
 
 OURS = '/stereo/disparity'
 #: The shipped graph's figures before the real-pair work (2df558a, measured with its eval):

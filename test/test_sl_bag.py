@@ -11,19 +11,19 @@ import pytest
 
 from conftest import REPO
 from depth_nodes.errors import BagError
-from depth_nodes.ros.graph import GraphConfig, NodeSpec
+from depth_nodes.graph.description import GraphConfig, NodeSpec
 from depth_nodes.ros.image import image_to_array
 from depth_nodes.sim.projector import ProjectorSimConfig
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.process import process_bag
-from depth_nodes.tools.structured_light_bag import (
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.bags.process import process_bag
+from depth_nodes.tools.bags.structured_light import (
     PRESETS,
     REFERENCE_FILE,
     StructuredLightBagConfig,
     read_structured_light_bag,
     write_structured_light_bag,
 )
-from depth_nodes.tools.structured_light_eval import (
+from depth_nodes.tools.evaluation.structured_light import (
     evaluate_structured_light_bag,
     opencv_available,
 )
@@ -137,7 +137,7 @@ def test_shipped_pipeline_config_decodes_the_bundled_bag(tmp_path: Path,
     """config/structured_light_pipeline.yaml on bags/structured_light_vga: no drops, and the
     phase decoder's depth within 5 mm of the truth at the median (measured 1.7 mm)."""
     from conftest import REPO
-    from depth_nodes.ros.graph import load_graph_config
+    from depth_nodes.graph.description import load_graph_config
 
     monkeypatch.chdir(REPO)  # the config names the speckle reference relative to the repo
     config = load_graph_config(REPO / 'config' / 'structured_light_pipeline.yaml')

@@ -24,7 +24,7 @@ from depth_nodes.sim.projector import (
     ProjectorSimConfig,
 )
 from depth_nodes.sim.rig import distort_rays
-from depth_nodes.tools.structured_light_eval import interior_mask
+from depth_nodes.tools.evaluation.structured_light import interior_mask
 
 SMALL = ProjectorSimConfig(width=160, height=120, focal_px=140.0, projector_width=160,
                            projector_height=120, projector_focal_px=125.0,

@@ -3,7 +3,7 @@ minutes; the README has its figures and the command)."""
 
 from __future__ import annotations
 
-from depth_nodes.tools.soak import SoakReport, _middleware_losses, timeline
+from depth_nodes.tools.bench.soak import SoakReport, _middleware_losses, timeline
 
 
 def test_middleware_losses_are_outputs_minus_inputs_per_topic() -> None:

@@ -17,8 +17,8 @@ from depth_nodes.core.baseline import BmSettings, SgbmSettings, opencv_bm, openc
 from depth_nodes.nodes.sgm_stereo import SgmStereoNode
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.process import process_bag
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.bags.process import process_bag
 
 #: A stereo_image_proc parameter file as its users keep one (every disparity-node
 #: parameter, upstream's types).

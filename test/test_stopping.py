@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from conftest import REAL_DATA, REPO
-from depth_nodes.tools.bagio import BagReader
+from depth_nodes.tools.bags.io import BagReader
 
 pytestmark = pytest.mark.ros
 
@@ -112,7 +112,7 @@ def test_play_and_record_stop_cleanly_with_a_valid_bag(tmp_path: Path,
     """Ctrl-C to play printed a traceback (rcl_shutdown already called) and exited 1;
     SIGINT to record an ExternalShutdownException traceback."""
     before = _segments()
-    from depth_nodes.tools.pairs import PairSource, import_pair
+    from depth_nodes.tools.bags.pairs import PairSource, import_pair
 
     folder = REAL_DATA / 'cones'
     long = import_pair(PairSource(folder / 'im2.png', folder / 'im6.png', frames=200),
@@ -138,7 +138,7 @@ def test_play_and_record_stop_cleanly_with_a_valid_bag(tmp_path: Path,
 
 def test_process_interrupted_leaves_a_valid_bag_of_what_was_done(
         tmp_path: Path, ros_env: dict[str, str]) -> None:
-    from depth_nodes.tools.pairs import PairSource, import_pair
+    from depth_nodes.tools.bags.pairs import PairSource, import_pair
 
     folder = REAL_DATA / 'cones'
     import_pair(PairSource(folder / 'im2.png', folder / 'im6.png', frames=300),

@@ -1,1 +1,1 @@
-"""The `depth-nodes` command: generate, process, play, record, eval."""
+"""The `depth-nodes` command (cli.py) and its parts: bags/, live/, evaluation/, bench/."""

@@ -23,7 +23,7 @@ from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.tools import signals
 
 if TYPE_CHECKING:
-    from depth_nodes.ros.graph import GraphConfig
+    from depth_nodes.graph.description import GraphConfig
 
 EXIT_ERROR = 1
 #: The bags committed with the package (a source checkout).
@@ -36,12 +36,12 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
 
 def _generate(args: argparse.Namespace) -> int:
-    from depth_nodes.tools import structured_light_bag as sl
-    from depth_nodes.tools.generate import PRESETS, preset, write_stereo_bag
+    from depth_nodes.tools.bags import structured_light as sl
+    from depth_nodes.tools.bags.generate import PRESETS, preset, write_stereo_bag
 
     known = [*PRESETS, *sl.PRESETS]
     if args.preset == 'bad_inputs':
-        from depth_nodes.tools.campaign import write_bad_input_bag
+        from depth_nodes.tools.evaluation.campaign import write_bad_input_bag
 
         source = args.source or BUNDLED_BAGS / 'stereo_vga'
         campaign = write_bad_input_bag(args.out, source, overwrite=args.force)
@@ -95,8 +95,8 @@ def _generate(args: argparse.Namespace) -> int:
 def _cmd_process(args: argparse.Namespace) -> int:
     # Offline processing needs no network: keep DDS discovery off unless told otherwise.
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')
-    from depth_nodes.ros.graph import load_graph_config
-    from depth_nodes.tools.process import default_config_path, process_bag, select_nodes
+    from depth_nodes.graph.description import load_graph_config
+    from depth_nodes.tools.bags.process import default_config_path, process_bag, select_nodes
 
     config = _renamed(load_graph_config(args.config or default_config_path()), args)
     config = select_nodes(config, args.nodes)
@@ -117,7 +117,7 @@ def _cmd_process(args: argparse.Namespace) -> int:
 
 def _warn_unmatched(config: GraphConfig, params_file: str | None) -> None:
     """Say at once which entries of the parameter file address no node of the graph."""
-    from depth_nodes.ros.graph import load_params_file, unmatched_entries, unmatched_warning
+    from depth_nodes.graph.description import load_params_file, unmatched_entries, unmatched_warning
 
     if params_file:
         for key in unmatched_entries(config, load_params_file(params_file)):
@@ -127,7 +127,7 @@ def _warn_unmatched(config: GraphConfig, params_file: str | None) -> None:
 
 def _renamed(config: GraphConfig, args: argparse.Namespace) -> GraphConfig:
     """The graph under the camera names given on the command line."""
-    from depth_nodes.ros.graph import rename_cameras
+    from depth_nodes.graph.description import rename_cameras
 
     return rename_cameras(config, namespace=args.namespace, left=args.left, right=args.right,
                           image=args.image)
@@ -154,7 +154,7 @@ def _camera_options(parser: argparse.ArgumentParser, *, auto: bool) -> None:
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.convert import ConvertOptions, convert_bag
+    from depth_nodes.tools.bags.convert import ConvertOptions, convert_bag
 
     options = ConvertOptions(namespace=args.namespace, codec=args.compress,
                              quality=args.quality, bayer=args.bayer)
@@ -170,7 +170,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 
 def _cmd_import_pair(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.pairs import PairSource, import_pair
+    from depth_nodes.tools.bags.pairs import PairSource, import_pair
 
     def path(value: str | None) -> Path | None:
         return Path(value) if value else None
@@ -189,9 +189,9 @@ def _cmd_import_pair(args: argparse.Namespace) -> int:
 
 
 def _cmd_pipeline(args: argparse.Namespace) -> int:
-    from depth_nodes.ros.graph import load_graph_config
-    from depth_nodes.tools.pipeline import run_pipeline
-    from depth_nodes.tools.process import default_config_path
+    from depth_nodes.graph.description import load_graph_config
+    from depth_nodes.tools.bags.process import default_config_path
+    from depth_nodes.tools.live.pipeline import run_pipeline
 
     config = _renamed(load_graph_config(args.config or default_config_path()), args)
     return run_pipeline(config, params_file=args.params, threads=args.threads,
@@ -200,7 +200,7 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
 
 
 def _cmd_play(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.live import PlayOptions, play_bag
+    from depth_nodes.tools.bags.live import PlayOptions, play_bag
 
     remap = {}
     for rule in args.remap or []:
@@ -218,8 +218,8 @@ def _cmd_play(args: argparse.Namespace) -> int:
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.bagio import remove_bag
-    from depth_nodes.tools.live import record_bag
+    from depth_nodes.tools.bags.io import remove_bag
+    from depth_nodes.tools.bags.live import record_bag
 
     with signals.graceful():
         count = record_bag(args.out_bag, args.topics, duration=args.duration,
@@ -234,7 +234,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
 
 def _cmd_param(args: argparse.Namespace) -> int:
-    from depth_nodes.tools import param
+    from depth_nodes.tools.live import param
 
     if args.verb == 'list' and args.node is None:
         for node, names in param.list_all_parameters(timeout=args.timeout).items():
@@ -257,14 +257,14 @@ def _cmd_param(args: argparse.Namespace) -> int:
 
 
 def _cmd_node(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.introspect import list_nodes
+    from depth_nodes.tools.live.introspect import list_nodes
 
     print('\n'.join(list_nodes(wait=args.wait)))
     return 0
 
 
 def _cmd_topic(args: argparse.Namespace) -> int:
-    from depth_nodes.tools import introspect
+    from depth_nodes.tools.live import introspect
 
     with signals.graceful():
         if args.verb == 'list':
@@ -280,7 +280,7 @@ def _cmd_topic(args: argparse.Namespace) -> int:
 
 
 def _cmd_diag(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.introspect import diagnostics_view
+    from depth_nodes.tools.live.introspect import diagnostics_view
 
     clear = None
     if sys.stdout.isatty() and not args.once:
@@ -304,8 +304,8 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _eval(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.evaluate import evaluate_bag, has_ground_truth
-    from depth_nodes.tools.previews import bag_previews
+    from depth_nodes.tools.evaluation.evaluate import evaluate_bag, has_ground_truth
+    from depth_nodes.tools.evaluation.previews import bag_previews
 
     if not has_ground_truth(args.bag):
         if not args.previews:
@@ -328,7 +328,7 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval_sl(args: argparse.Namespace) -> int:
-    from depth_nodes.tools.structured_light_eval import evaluate_structured_light_bag
+    from depth_nodes.tools.evaluation.structured_light import evaluate_structured_light_bag
 
     print(evaluate_structured_light_bag(args.bag, opencv=not args.no_opencv).format())
     return 0
@@ -353,7 +353,7 @@ def _check_bench_args(args: argparse.Namespace) -> None:
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.live:
         _check_bench_args(args)
-        from depth_nodes.tools.bench_live import bench_live
+        from depth_nodes.tools.bench.live import bench_live
 
         print(bench_live(rate=args.rate, count=args.frames or 50, threads=args.threads,
                          opencv=not args.no_opencv, bag=args.bag, paths=args.paths,
@@ -364,7 +364,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                           'structured_light, soak) or --live')
     _check_bench_args(args)
     if args.stage == 'soak':
-        from depth_nodes.tools.soak import soak
+        from depth_nodes.tools.bench.soak import soak
 
         print(soak(duration=args.duration, rate=args.rate, tune_every=args.tune_every,
                    composed=args.composed, memory_log=args.memory_log).format())
@@ -372,7 +372,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
     import cv2
 
-    from depth_nodes.tools.bench import bench_rectify, bench_sgm
+    from depth_nodes.tools.bench.sgm import bench_rectify, bench_sgm
 
     threads = 2 if args.threads is None else args.threads
     cv2.setNumThreads(threads)
@@ -386,15 +386,15 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         print(bench_sgm(repeats=args.frames or 10, disparities=args.disparities,
                         paths=args.paths or 8).format())
     elif args.stage == 'cross_check':
-        from depth_nodes.tools.bench_cross_check import bench_cross_check
+        from depth_nodes.tools.bench.cross_check import bench_cross_check
 
         print(bench_cross_check(repeats=args.frames or 20).format())
     elif args.stage == 'point_cloud':
-        from depth_nodes.tools.bench_point_cloud import bench_point_cloud
+        from depth_nodes.tools.bench.point_cloud import bench_point_cloud
 
         print(bench_point_cloud(repeats=args.frames or 20).format())
     elif args.stage == 'structured_light':
-        from depth_nodes.tools.structured_light_eval import bench_structured_light
+        from depth_nodes.tools.evaluation.structured_light import bench_structured_light
 
         bag = args.bag or str(BUNDLED_BAGS / 'structured_light_vga')
         print(bench_structured_light(bag, repeats=args.frames or 20).format())

@@ -9,7 +9,7 @@ process` runs, under the same camera names and with the same parameter-file rule
   ``/**``, and is merged into the node's inline parameters here (launch_ros would match
   entries by the node's own name only);
 * ``namespace``, ``left``, ``right``, ``image``: a camera driver's names
-  (:func:`~depth_nodes.ros.graph.rename_cameras`);
+  (:func:`~depth_nodes.graph.description.rename_cameras`);
 * ``image_transport``: how the nodes that read the driver's images take them (the
   rectifiers and the structured-light decoder, whose classes say
   ``reads_camera_images``).
@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import (
+from depth_nodes.graph.description import (
     camera_readers,
     load_graph_config,
     load_params_file,

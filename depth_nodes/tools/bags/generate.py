@@ -33,7 +33,7 @@ from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim import StereoFrame, StereoSimConfig, simulate_stereo
-from depth_nodes.tools.bagio import BagWriter
+from depth_nodes.tools.bags.io import BagWriter
 from depth_nodes.tools.signals import stop_requested
 
 NAMESPACE = '/stereo'

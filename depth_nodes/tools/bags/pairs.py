@@ -1,7 +1,7 @@
 """`depth-nodes import-pair`: a real image pair (and its ground truth) as a bag that
 `process` runs the graph on and `eval` scores.
 
-The bag has the topics of a generated one (``depth_nodes.tools.generate``), so the shipped
+The bag has the topics of a generated one (``depth_nodes.tools.bags.generate``), so the shipped
 stereo graph runs unchanged:
 
 * ``<ns>/left|right/image_raw`` (rgb8, mono8 or mono16, as the files are) and
@@ -39,7 +39,7 @@ from depth_nodes.errors import CalibrationError, ConfigError, InputFileError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.tools.bagio import BagWriter
+from depth_nodes.tools.bags.io import BagWriter
 
 #: Stamp of the first frame (s) and the period between copies (ns).
 FIRST_STAMP_S = 1

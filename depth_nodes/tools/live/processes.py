@@ -26,7 +26,8 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import NODE_PLUGINS, GraphConfig, NodeSpec, parameters_for
+from depth_nodes.graph.description import GraphConfig, NodeSpec, parameters_for
+from depth_nodes.nodes import NODE_PLUGINS
 
 #: Seconds a node process gets to exit after SIGINT before it is killed.
 STOP_TIMEOUT_S = 15.0
@@ -252,7 +253,7 @@ def _watched_type(topic: str) -> type:
 
 def load_stereo_frames(bag: str | Path, namespace: str = '/stereo') -> list[StereoFrame]:
     """The raw stereo frames (left image, left info, right image, right info) of a bag."""
-    from depth_nodes.tools.bagio import BagReader
+    from depth_nodes.tools.bags.io import BagReader
 
     ns = namespace.rstrip('/')
     topics = [f'{ns}/left/image_raw', f'{ns}/left/camera_info', f'{ns}/right/image_raw',

@@ -188,7 +188,7 @@ class ParameterClient:
         Raises:
             ConfigError: They did not appear; names the nodes that are visible.
         """
-        from depth_nodes.tools.introspect import (
+        from depth_nodes.tools.live.introspect import (
             DISCOVERY_S,
             STABLE_S,
             unnamed_endpoints,
@@ -329,7 +329,7 @@ def dump_parameters(node: str, *, timeout: float = DEFAULT_TIMEOUT) -> str:
 def list_all_parameters(*, timeout: float = DEFAULT_TIMEOUT) -> dict[str, list[str] | None]:
     """Every visible node's parameter names (``ros2 param list`` without a node); None for
     a node that did not answer within ``timeout`` s (no parameter services, or gone)."""
-    from depth_nodes.tools.introspect import DISCOVERY_S, graph_node, settle, visible_nodes
+    from depth_nodes.tools.live.introspect import DISCOVERY_S, graph_node, settle, visible_nodes
 
     out: dict[str, list[str] | None] = {}
     with graph_node('param_list') as (node, executor):

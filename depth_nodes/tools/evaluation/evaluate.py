@@ -49,8 +49,13 @@ from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array, to_rgb8, to_uint8
 from depth_nodes.ros.transport import gray_image, image_pixels
-from depth_nodes.tools.bagio import BagReader
-from depth_nodes.tools.previews import MapView, depth_metres, previews_folder, write_views
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.evaluation.previews import (
+    MapView,
+    depth_metres,
+    previews_folder,
+    write_views,
+)
 
 DISPARITY = 'stereo_msgs/msg/DisparityImage'
 IMAGE = 'sensor_msgs/msg/Image'

@@ -31,7 +31,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profi
 from rclpy.signals import SignalHandlerOptions
 
 from depth_nodes.errors import ConfigError, DepthNodesError
-from depth_nodes.tools.bagio import message_class
+from depth_nodes.tools.bags.io import message_class
 from depth_nodes.tools.signals import stop_requested
 
 #: Seconds of discovery before a listing is printed (at least; see :func:`settle`).

@@ -42,7 +42,7 @@ from depth_nodes.core.structured_light import (
 )
 from depth_nodes.core.structured_light.reconstruct import reconstruct
 from depth_nodes.errors import BagError
-from depth_nodes.tools.structured_light_bag import read_structured_light_bag
+from depth_nodes.tools.bags.structured_light import read_structured_light_bag
 
 F32 = NDArray[np.float32]
 #: Defaults of the node's decoding parameters, used for the figures.
@@ -267,7 +267,7 @@ def bench_structured_light(path: str | Path, *, repeats: int = 10) -> SLBench:
     Raises:
         BagError: As :func:`read_structured_light_bag`.
     """
-    from depth_nodes.tools.bench import median_ms
+    from depth_nodes.tools.bench.sgm import median_ms
 
     bag = read_structured_light_bag(path)
     if not bag.sequences:
@@ -315,7 +315,7 @@ def _node_runner(bag: Any, seq: Any) -> tuple[Any, Any]:
     from depth_nodes.nodes.structured_light import StructuredLightNode
     from depth_nodes.ros.camera_info import model_to_camera_info
     from depth_nodes.ros.image import array_to_image
-    from depth_nodes.tools.structured_light_bag import _header
+    from depth_nodes.tools.bags.structured_light import _header
 
     cfg = bag.config
     context = Context()

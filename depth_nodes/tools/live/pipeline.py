@@ -1,7 +1,7 @@
 """`depth-nodes pipeline`: every node of a graph description composed into one process.
 
 The nodes are the same classes the console scripts run, created from the YAML graph
-description (names, namespaces, parameters, remappings; see ``depth_nodes.ros.graph``).
+description (names, namespaces, parameters, remappings; see ``depth_nodes.graph.description``).
 Each node is spun by its own single-threaded executor on its own thread, so a node handles
 one message at a time while different nodes run concurrently (the numba kernels and
 OpenCV release the GIL). Messages between the nodes still travel over the middleware, so
@@ -37,7 +37,7 @@ from rclpy.executors import (
 from rclpy.signals import SignalHandlerOptions
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import (
+from depth_nodes.graph.description import (
     GraphConfig,
     camera_readers,
     create_nodes,

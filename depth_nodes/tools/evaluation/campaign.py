@@ -20,8 +20,8 @@ from pathlib import Path
 from sensor_msgs.msg import Image
 
 from depth_nodes.errors import ArgumentError
-from depth_nodes.tools.bagio import BagWriter
-from depth_nodes.tools.live_graph import StereoFrame, load_stereo_frames
+from depth_nodes.tools.bags.io import BagWriter
+from depth_nodes.tools.live.processes import StereoFrame, load_stereo_frames
 
 NS = '/stereo'
 TOPICS = (f'{NS}/left/image_raw', f'{NS}/left/camera_info', f'{NS}/right/image_raw',

@@ -171,9 +171,9 @@ def _bundled_pair() -> tuple[Any, Any]:
     from depth_nodes.core.rectify import rectify_image
     from depth_nodes.ros.camera_info import camera_info_to_model
     from depth_nodes.ros.image import image_to_array
-    from depth_nodes.tools.bagio import BagReader
+    from depth_nodes.tools.bags.io import BagReader
 
-    bag = Path(__file__).resolve().parents[2] / 'bags' / 'stereo_vga'
+    bag = Path(__file__).resolve().parents[3] / 'bags' / 'stereo_vga'
     first: dict[str, Any] = {}
     with BagReader(bag) as reader:
         for m in reader.messages([f'/stereo/{s}/{k}' for s in ('left', 'right')

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
-from depth_nodes.tools.bench import median_ms
+from depth_nodes.tools.bench.sgm import median_ms
 
 
 @dataclass

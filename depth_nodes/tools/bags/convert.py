@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 
 from depth_nodes.errors import BagError, ConfigError, DepthNodesError
-from depth_nodes.ros.graph import checked_namespace
+from depth_nodes.graph.description import checked_namespace
 from depth_nodes.ros.image import array_to_image, image_to_array, to_rgb8
 from depth_nodes.ros.transport import compress_image
-from depth_nodes.tools.bagio import BagReader, BagWriter, remove_bag
+from depth_nodes.tools.bags.io import BagReader, BagWriter, remove_bag
 from depth_nodes.tools.signals import stop_requested
 
 IMAGE = 'sensor_msgs/msg/Image'

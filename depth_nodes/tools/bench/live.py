@@ -27,15 +27,15 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import GraphConfig, load_graph_config
-from depth_nodes.tools.live_graph import (
+from depth_nodes.graph.description import GraphConfig, load_graph_config
+from depth_nodes.tools.live.processes import (
     GraphProcesses,
     StereoFeeder,
     StereoFrame,
     load_stereo_frames,
 )
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 NS = '/stereo'
 LEFT_RECT, RIGHT_RECT = f'{NS}/left/image_rect', f'{NS}/right/image_rect'
 DISPARITY, CHECKED, POINTS = f'{NS}/disparity', f'{NS}/disparity_checked', f'{NS}/points2'

@@ -46,7 +46,7 @@ from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.ros.camera_info import camera_info_to_model, model_to_camera_info
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim.projector import ProjectorCameraSim, ProjectorSimConfig, reference_plane_scene
-from depth_nodes.tools.bagio import BagReader, BagWriter
+from depth_nodes.tools.bags.io import BagReader, BagWriter
 from depth_nodes.tools.signals import stop_requested
 
 NAMESPACE = '/sl'

@@ -24,7 +24,7 @@ from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import to_rgb8
 from depth_nodes.ros.transport import image_pixels
-from depth_nodes.tools.bagio import BagReader
+from depth_nodes.tools.bags.io import BagReader
 
 Array = NDArray[Any]
 DISPARITY = 'stereo_msgs/msg/DisparityImage'

@@ -20,7 +20,7 @@ from rclpy.context import Context
 from sensor_msgs.msg import Image
 
 from depth_nodes.errors import BagError, ConfigError
-from depth_nodes.ros.graph import (
+from depth_nodes.graph.description import (
     GraphConfig,
     camera_readers,
     checked_name,
@@ -32,13 +32,13 @@ from depth_nodes.ros.graph import (
     unmatched_entries,
     with_transport,
 )
-from depth_nodes.tools.bagio import BagReader, BagWriter, message_type_name, remove_bag
+from depth_nodes.tools.bags.io import BagReader, BagWriter, message_type_name, remove_bag
 from depth_nodes.tools.signals import stop_requested
 
 COMPRESSED = 'sensor_msgs/msg/CompressedImage'
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 #: The default graph: the stereo pipeline under /stereo.
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'stereo_pipeline.yaml'
+DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / 'config' / 'stereo_pipeline.yaml'
 
 
 def default_config_path() -> Path:

@@ -27,18 +27,8 @@ import yaml
 from rclpy.parameter import Parameter
 
 from depth_nodes.errors import ConfigError, yaml_problem
+from depth_nodes.nodes import NODE_PLUGINS
 from depth_nodes.ros.node import DepthNode
-
-#: Short plugin names of the nodes this package provides. Each is also the name of the
-#: node's console script (``ros2 run depth_nodes <plugin>``), which launch files rely on.
-NODE_PLUGINS: dict[str, str] = {
-    'rectify': 'depth_nodes.nodes.rectify:RectifyNode',
-    'sgm_stereo': 'depth_nodes.nodes.sgm_stereo:SgmStereoNode',
-    'cross_check': 'depth_nodes.nodes.cross_check:CrossCheckNode',
-    'point_cloud': 'depth_nodes.nodes.point_cloud:PointCloudNode',
-    'structured_light': 'depth_nodes.nodes.structured_light:StructuredLightNode',
-    'static_transform': 'depth_nodes.nodes.static_transform:StaticTransformNode',
-}
 
 
 @dataclass

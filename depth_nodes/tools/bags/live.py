@@ -33,8 +33,8 @@ from rclpy.qos import (
 from rclpy.signals import SignalHandlerOptions
 
 from depth_nodes.errors import BagError, ConfigError
-from depth_nodes.ros.graph import checked_namespace
-from depth_nodes.tools.bagio import BagReader, BagWriter, message_class
+from depth_nodes.graph.description import checked_namespace
+from depth_nodes.tools.bags.io import BagReader, BagWriter, message_class
 from depth_nodes.tools.signals import STOP, stop_requested
 
 #: Queue depth of the player's publishers and the recorder's subscriptions.

@@ -39,8 +39,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.graph import load_graph_config
-from depth_nodes.tools.bench_live import (
+from depth_nodes.graph.description import load_graph_config
+from depth_nodes.tools.bench.live import (
     FIRST_FRAME_TIMEOUT_S,
     NS,
     POINTS,
@@ -48,7 +48,7 @@ from depth_nodes.tools.bench_live import (
     _wait,
     warm_up,
 )
-from depth_nodes.tools.live_graph import GraphProcesses, StereoFeeder, load_stereo_frames
+from depth_nodes.tools.live.processes import GraphProcesses, StereoFeeder, load_stereo_frames
 from depth_nodes.tools.signals import STOP, graceful, stop_requested
 
 SGM = f'{NS}/sgm_stereo'

@@ -1,0 +1,2 @@
+"""Accuracy: scores against ground truth beside OpenCV (evaluate), previews, the
+structured-light figures and the bad-input campaign."""
