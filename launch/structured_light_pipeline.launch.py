@@ -10,26 +10,8 @@ as in the stereo launch file. The speckle node's speckle_reference in its config
 relative to the repository root: from anywhere else, give it an absolute path there.
 """
 
-import os
-
-from ament_index_python.packages import get_package_share_directory
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
-from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
-
-from depth_nodes.graph.launching import LAUNCH_ARGUMENTS, launch_nodes
-
-
-def _nodes(context, *args, **kwargs):
-    config = os.path.join(get_package_share_directory('depth_nodes'), 'config',
-                          'structured_light_pipeline.yaml')
-    given = {name: LaunchConfiguration(name).perform(context) for name in LAUNCH_ARGUMENTS}
-    return [Node(package='depth_nodes', output='screen', **node)
-            for node in launch_nodes(config, **given)]
+from depth_nodes.graph.launching import launch_description
 
 
 def generate_launch_description():
-    arguments = [DeclareLaunchArgument(name, default_value='', description=text)
-                 for name, text in LAUNCH_ARGUMENTS.items()]
-    return LaunchDescription([*arguments, OpaqueFunction(function=_nodes)])
+    return launch_description('structured_light_pipeline.yaml')

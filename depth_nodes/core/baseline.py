@@ -6,7 +6,7 @@ rectified images in the same run.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -54,18 +54,8 @@ STEREO_IMAGE_PROC_DEFAULTS_HH = SgbmSettings(
     'opencv SGBM MODE_HH, stereo_image_proc defaults', mode=cv2.STEREO_SGBM_MODE_HH)
 
 #: The tuned settings with MODE_SGBM (5 directions, single pass).
-TUNED_SGBM = SgbmSettings(
-    'opencv SGBM MODE_SGBM, tuned P1/P2',
-    mode=cv2.STEREO_SGBM_MODE_SGBM,
-    correlation_window_size=TUNED_HH.correlation_window_size,
-    P1=TUNED_HH.P1,
-    P2=TUNED_HH.P2,
-    uniqueness_ratio=TUNED_HH.uniqueness_ratio,
-    speckle_size=TUNED_HH.speckle_size,
-    speckle_range=TUNED_HH.speckle_range,
-    disp12_max_diff=TUNED_HH.disp12_max_diff,
-    prefilter_cap=TUNED_HH.prefilter_cap,
-)
+TUNED_SGBM = replace(TUNED_HH, label='opencv SGBM MODE_SGBM, tuned P1/P2',
+                     mode=cv2.STEREO_SGBM_MODE_SGBM)
 
 BASELINES = (STEREO_IMAGE_PROC_DEFAULTS, STEREO_IMAGE_PROC_DEFAULTS_HH, TUNED_SGBM, TUNED_HH)
 

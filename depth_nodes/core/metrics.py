@@ -1,6 +1,6 @@
 """Accuracy metrics for stereo disparity, depth and confidence maps (numpy only).
 
-Definitions follow DESIGN.md ("Metrics used everywhere"):
+Definitions (docs/design.md, "Metrics"):
 
 - bad-N: fraction of ground-truth pixels with ``|d - d_gt| > N`` px, reported dense (an
   invalid estimate counts as bad) and sparse (over estimated pixels only, with the density).
@@ -15,8 +15,7 @@ the evaluated pixels further (e.g. to non-occluded ones). Empty evaluations give
 scores without printing warnings.
 
 Misuse of the API (mismatched shapes, a non-boolean mask, a negative threshold) raises
-``ValueError``, as numpy does: these are programming errors in the caller, not conditions a
-user of the nodes can cause, so they are not part of the ``DepthNodesError`` family.
+:class:`~depth_nodes.errors.ArgumentError`, the package's error family's ``ValueError``.
 """
 
 from __future__ import annotations

@@ -79,3 +79,28 @@ def launch_nodes(config_path: str | Path, *, params_file: str | None = None,
                       'namespace': spec.namespace, 'parameters': [values],
                       'remappings': list(spec.remappings.items())})
     return nodes
+
+
+def launch_description(config_name: str) -> Any:
+    """The LaunchDescription of a launch file that starts the graph
+    ``config/<config_name>`` of the installed package, one process per node, with the
+    launch arguments of :data:`LAUNCH_ARGUMENTS` (all optional).
+
+    `launch`, `launch_ros` and `ament_index_python` come with a ROS install (not PyPI):
+    imported here, when a launch file runs.
+    """
+    from ament_index_python.packages import get_package_share_directory
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument, OpaqueFunction
+    from launch.substitutions import LaunchConfiguration
+    from launch_ros.actions import Node
+
+    def nodes(context: Any, *args: Any, **kwargs: Any) -> list[Any]:
+        config = Path(get_package_share_directory('depth_nodes')) / 'config' / config_name
+        given = {name: LaunchConfiguration(name).perform(context) for name in LAUNCH_ARGUMENTS}
+        return [Node(package='depth_nodes', output='screen', **node)
+                for node in launch_nodes(config, **given)]
+
+    arguments = [DeclareLaunchArgument(name, default_value='', description=text)
+                 for name, text in LAUNCH_ARGUMENTS.items()]
+    return LaunchDescription([*arguments, OpaqueFunction(function=nodes)])

@@ -1,4 +1,5 @@
-"""stereo_msgs/DisparityImage building and reading, with the conventions of DESIGN.md.
+"""stereo_msgs/DisparityImage building and reading, with the conventions of docs/design.md
+("Messages").
 
 Decisions:
     * Invalid pixels (NaN, inf, or below ``min_disparity``) are stored as

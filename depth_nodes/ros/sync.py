@@ -123,6 +123,25 @@ class _SyncBase:
         self.emitted = 0
         self._last_stamp: list[int | None] = [None] * n_inputs
 
+    def add(self, index: int, msg: Any) -> None:
+        """Offer ``msg`` on input ``index``; may call the callback (once with exact
+        stamps, one or more times with the approximate policy).
+
+        Args:
+            index: Input number in ``[0, n_inputs)``.
+            msg: Message with ``header.stamp``.
+
+        Raises:
+            SyncError: If ``index`` is out of range or ``msg`` has no valid stamp.
+        """
+        index = self._check_index(index)
+        stamp = _msg_stamp_ns(msg)
+        if self._accept(index, stamp):
+            self._store(index, stamp, msg)
+
+    def _store(self, index: int, stamp: int, msg: Any) -> None:
+        raise NotImplementedError
+
     def _check_index(self, index: int) -> int:
         if isinstance(index, bool) or not isinstance(index, int):
             raise SyncError(f'index must be an int in [0, {self.n_inputs}), got {index!r}')
@@ -190,20 +209,8 @@ class ExactTimeSynchronizer(_SyncBase):
         """Number of frames (stamps) currently waiting for their set to complete."""
         return len(self._pending)
 
-    def add(self, index: int, msg: Any) -> None:
-        """Offer ``msg`` on input ``index``; may call the callback once.
-
-        Args:
-            index: Input number in ``[0, n_inputs)``.
-            msg: Message with ``header.stamp``.
-
-        Raises:
-            SyncError: If ``index`` is out of range or ``msg`` has no valid stamp.
-        """
-        index = self._check_index(index)
-        stamp = _msg_stamp_ns(msg)
-        if not self._accept(index, stamp):
-            return
+    def _store(self, index: int, stamp: int, msg: Any) -> None:
+        """Hold ``msg``; call the callback once if its set is complete."""
         slots = self._pending.setdefault(stamp, [None] * self.n_inputs)
         slots[index] = msg
         if len(self._pending) > self.queue_size:
@@ -331,20 +338,8 @@ class ApproximateTimeSynchronizer(_SyncBase):
         if index == 0:
             self._lose(reason, count)
 
-    def add(self, index: int, msg: Any) -> None:
-        """Offer ``msg`` on input ``index``; may call the callback one or more times.
-
-        Args:
-            index: Input number in ``[0, n_inputs)``.
-            msg: Message with ``header.stamp``.
-
-        Raises:
-            SyncError: If ``index`` is out of range or ``msg`` has no valid stamp.
-        """
-        index = self._check_index(index)
-        stamp = _msg_stamp_ns(msg)
-        if not self._accept(index, stamp):
-            return
+    def _store(self, index: int, stamp: int, msg: Any) -> None:
+        """Queue ``msg``; call the callback for every set that is now decided."""
         queue = self._queues[index]
         queue.append((stamp, msg))
         self._process()

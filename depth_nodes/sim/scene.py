@@ -70,8 +70,13 @@ class Primitive:
 
     label: str
     material: Material
+    centre: FloatArray
     #: Bounding sphere (centre, radius) used to skip rays that cannot hit; None: unbounded.
     bound: tuple[FloatArray, float] | None = None
+
+    def _place(self, label: str, material: Material, centre: Vector) -> None:
+        self.label, self.material = label, material
+        self.centre = np.asarray(centre, dtype=np.float64)
 
     def intersect(self, o: FloatArray, d: FloatArray) -> FloatArray:
         """Nearest ray parameter ``t > T_MIN`` of the hit, ``inf`` where missed.
@@ -105,9 +110,7 @@ class Rect(Primitive):
         e2: Vector,
         half_size: tuple[float, float] = (np.inf, np.inf),
     ) -> None:
-        self.label = label
-        self.material = material
-        self.centre = np.asarray(centre, dtype=np.float64)
+        self._place(label, material, centre)
         self.e1 = np.asarray(e1, dtype=np.float64) / np.linalg.norm(e1)
         e2v = np.asarray(e2, dtype=np.float64)
         e2v = e2v - (e2v @ self.e1) * self.e1
@@ -145,9 +148,7 @@ class Box(Primitive):
         rotation: FloatArray,
         half_size: Vector,
     ) -> None:
-        self.label = label
-        self.material = material
-        self.centre = np.asarray(centre, dtype=np.float64)
+        self._place(label, material, centre)
         self.rotation = np.asarray(rotation, dtype=np.float64)
         self.half_size = np.asarray(half_size, dtype=np.float64)
         self.bound = (self.centre, float(np.linalg.norm(self.half_size)))
@@ -185,9 +186,7 @@ class Sphere(Primitive):
     """A sphere; surface coordinates are arc lengths (longitude seam faces away, +Z)."""
 
     def __init__(self, label: str, material: Material, centre: Vector, radius: float) -> None:
-        self.label = label
-        self.material = material
-        self.centre = np.asarray(centre, dtype=np.float64)
+        self._place(label, material, centre)
         self.radius = float(radius)
         self.bound = (self.centre, self.radius)
 
@@ -215,9 +214,7 @@ class Cylinder(Primitive):
         radius: float,
         half_length: float,
     ) -> None:
-        self.label = label
-        self.material = material
-        self.centre = np.asarray(centre, dtype=np.float64)
+        self._place(label, material, centre)
         self.axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
         helper = np.array([0.0, 0.0, 1.0]) if abs(self.axis[2]) < 0.9 else np.array([1.0, 0, 0])
         self.e1 = np.cross(self.axis, helper)

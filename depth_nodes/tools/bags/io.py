@@ -16,7 +16,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Self
 
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import (
@@ -84,7 +84,21 @@ class BagMessage:
             ) from None
 
 
-class BagReader:
+class _Closing:
+    """``with`` closes it."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+class BagReader(_Closing):
     """Read a rosbag2 bag (sqlite3 or MCAP, compressed or not).
 
     Args:
@@ -159,19 +173,9 @@ class BagReader:
         """Close the bag."""
         self._reader.close()
 
-    def __enter__(self) -> BagReader:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
-class BagWriter:
+class BagWriter(_Closing):
     """Write a rosbag2 bag in MCAP storage, zstd-compressed per chunk.
 
     Topics are registered on first write with the type's message definition from the
@@ -250,16 +254,6 @@ class BagWriter:
         """Finish the bag (writes metadata.yaml)."""
         self._writer.close()
 
-    def __enter__(self) -> BagWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _set_chunk_compression_level(writer: Writer, level: int) -> None:

@@ -7,7 +7,7 @@ Every DisparityImage topic that is not ground truth is scored against
 
 A ``<ns>/confidence`` image belongs to the checked disparity of its namespace. Its
 sparsification AUC / optimum is reported twice: over the pixels the *raw* matcher
-(``<ns>/disparity``) estimated, ranking the raw matcher's errors (DESIGN.md's definition:
+(``<ns>/disparity``) estimated, ranking the raw matcher's errors (docs/design.md, "Metrics":
 a pixel the check dropped is not counted as an error ranked last, which would measure the
 check), and over the pixels its own disparity has, ranking that disparity's errors.
 

@@ -1,0 +1,106 @@
+"""Helpers shared by the tests, without ROS: the repository's paths, isolated graph
+environments for subprocesses, the CLI as a user runs it, the real pairs of test/data.
+
+``pytest.ini`` puts this folder on ``sys.path``, so any test imports ``from helpers
+import ...`` (fixtures live in the conftest files)."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+TEST_DIR = Path(__file__).resolve().parent
+
+#: Seconds a node process may take to start (imports, numba cache) before a test gives up.
+START_TIMEOUT = 120.0
+
+#: Disparity window per bundled stereo bag: 128 at 640 px, 64 on the 320 px ones (OpenCV is
+#: always given the same window as ours).
+STEREO_RANGES = {'stereo_vga': 128, 'stereo_qvga_color': 64, 'stereo_qvga_fisheye': 64}
+
+#: The real pairs of test/data (Middlebury 2003, quarter size; README there), all searched
+#: with 64 disparities.
+REAL_PAIRS = ('teddy', 'cones')
+REAL_DATA = TEST_DIR / 'data' / 'middlebury2003'
+
+# Domain IDs 1..100 are valid everywhere; start at a pid-dependent offset so that two test
+# sessions running at once are unlikely to share one, and never reuse one within a session.
+_DOMAINS = itertools.cycle([1 + (os.getpid() + i) % 100 for i in range(100)])
+
+
+def next_domain() -> str:
+    """A ROS_DOMAIN_ID not used before in this test session (until 100 have been)."""
+    return str(next(_DOMAINS))
+
+
+def isolated(env: dict[str, str], domain: str) -> dict[str, str]:
+    """``env`` for an isolated ROS graph: ``domain``, localhost-only discovery, no static
+    peers, and this folder importable (the test nodes of harness_nodes.py)."""
+    env = dict(env)
+    env['ROS_DOMAIN_ID'] = domain
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env.pop('ROS_STATIC_PEERS', None)
+    env['PYTHONPATH'] = os.pathsep.join(filter(None, [str(TEST_DIR), env.get('PYTHONPATH')]))
+    return env
+
+
+def graph_env() -> dict[str, str]:
+    """Environment of a fresh isolated graph, for subprocesses (not tied to one test)."""
+    return isolated(dict(os.environ), next_domain())
+
+
+def run_cli(args: list[str], env: dict[str, str] | None = None,
+            timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    """Run `depth-nodes ARGS` in a subprocess, as a user would."""
+    return subprocess.run(
+        [sys.executable, '-m', 'depth_nodes.tools.cli', *args],
+        capture_output=True, text=True, env=env, timeout=timeout, cwd=REPO, check=False,
+    )
+
+
+def interrupt(proc: subprocess.Popen[Any], timeout: float = 30) -> str:
+    """Stop a node process with Ctrl-C, as a user does, and return what it printed (when
+    its output is a pipe). A clean shutdown removes the process's Fast DDS shared-memory
+    segment; one still running after ``timeout`` seconds is killed (exit status -9), which
+    leaves its 64 MiB segment in /dev/shm."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        output, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        output, _ = proc.communicate()
+    return output or ''
+
+
+def import_real_pair(name: str, out: Path) -> Path:
+    """Import a pair of test/data as a bag (colour images, ground truth of both views)."""
+    from depth_nodes.tools.bags.pairs import PairSource, import_pair
+
+    folder = REAL_DATA / name
+    import_pair(PairSource(folder / 'im2.png', folder / 'im6.png',
+                           ground_truth=folder / 'disp2.pgm', gt_scale=4.0,
+                           ground_truth_right=folder / 'disp6.pgm'), out)
+    return out
+
+
+class Lazy:
+    """A module's test data (a simulated frame, a match) made on first use and kept for the
+    session: collecting or deselecting the module's tests costs nothing.
+
+    ``FRAME = Lazy(lambda: next(simulate_stereo(CONFIG)))``; then ``FRAME.left_raw``.
+    """
+
+    def __init__(self, make: Any) -> None:
+        self._make = make
+        self._value: Any = None
+
+    def __getattr__(self, name: str) -> Any:
+        if self._value is None:
+            self._value = self._make()
+        return getattr(self._value, name)

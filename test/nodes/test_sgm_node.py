@@ -1,0 +1,377 @@
+"""The sgm_stereo node: counted drops for bad input, live parameter changes, both backends."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numba
+import numpy as np
+import pytest
+from helpers import Lazy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+from ros_helpers import capture, tuner
+
+from depth_nodes.core.baseline import opencv_sgbm
+from depth_nodes.core.sgm import SgmMatcher
+from depth_nodes.nodes.sgm_stereo import SgmStereoNode, opencv_settings, sgm_params
+from depth_nodes.ros.camera_info import model_to_camera_info
+from depth_nodes.ros.disparity import read_disparity
+from depth_nodes.ros.image import array_to_image, image_to_array
+from depth_nodes.sim import StereoSimConfig, simulate_stereo
+
+pytestmark = pytest.mark.ros
+
+CONFIG = StereoSimConfig(width=160, height=120, n_frames=1, seed=6, distortion_scale=0.0,
+                         rotation_deg=0.0, noise_sigma=1.0)
+FRAME = Lazy(lambda: next(simulate_stereo(CONFIG)))
+
+
+
+@pytest.fixture
+def node(context: Context) -> Any:
+    n = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48)])
+    capture(n)
+    yield n
+    n.destroy_node()
+
+
+def _inputs(changes: dict[Any, Any] | None = None) -> list[Any]:
+    changes = dict(changes or {})
+    left = changes.pop('left', FRAME.left_rect_gt)
+    right = changes.pop('right', FRAME.right_rect_gt)
+    msgs = [array_to_image(left, changes.pop('left_encoding', 'mono8')),
+            model_to_camera_info(FRAME.left_camera),
+            array_to_image(right, changes.pop('right_encoding', 'mono8')),
+            model_to_camera_info(FRAME.right_camera)]
+    for (index, field), value in changes.items():
+        setattr(msgs[index], field, value)
+    return msgs
+
+
+def test_good_frame_publishes_three_outputs(node: Any) -> None:
+    node.on_frame(*_inputs())
+    assert set(node.outbox) == {'/disparity', '/disparity_right', '/cost_ratio'}
+    frame = read_disparity(node.outbox['/disparity'])
+    expected = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                               FRAME.right_rect_gt)
+    np.testing.assert_array_equal(frame.disparity, expected.disparity)
+    good = np.abs(frame.disparity - FRAME.disparity_gt) < 2
+    assert good.mean() > 0.75
+    assert node.drops == {}
+
+
+@pytest.mark.parametrize(('changes', 'reason'), [
+    ({'right': FRAME.right_rect_gt[:, :150]}, 'size_mismatch'),
+    ({'right': FRAME.right_rect_gt.astype(np.uint16) * 257, 'right_encoding': 'mono16'},
+     'encoding_mismatch'),
+    ({'left': FRAME.left_rect_gt.astype(np.float32), 'left_encoding': '32FC1',
+      'right': FRAME.right_rect_gt.astype(np.float32), 'right_encoding': '32FC1'},
+     'unsupported_encoding'),
+    ({(1, 'k'): [0.0] * 9}, 'uncalibrated'),
+    ({(3, 'p'): [100.0, 0, 80, 5.0, 0, 100, 60, 0, 0, 0, 1, 0]}, 'bad_calibration'),
+    ({(1, 'width'): 320, (3, 'width'): 320}, 'camera_info_mismatch'),
+    ({(0, 'step'): 10}, 'malformed_image'),
+])
+def test_bad_input_is_a_counted_drop(node: Any, changes: dict[Any, Any], reason: str) -> None:
+    node.on_frame(*_inputs(changes))
+    assert node.outbox == {}
+    assert node.drops == {reason: 1}
+    node.on_frame(*_inputs())
+    assert '/disparity' in node.outbox
+
+
+class _Recorder:
+    """Stands in for an rclpy publisher: notes what would have gone out (any thread)."""
+
+    def __init__(self, topic: str, log: list[tuple[str, Any]]) -> None:
+        self.topic, self.log = topic, log
+
+    def publish(self, msg: Any) -> None:
+        self.log.append((self.topic, msg))
+
+
+def test_parallel_frames_publish_every_frame_in_stamp_order(context: Context) -> None:
+    """Two frames matched at once on worker threads: each frame's three outputs equal the
+    frame-by-frame matcher's, and they go out in the order the frames came."""
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('parallel_frames', value=2),
+        Parameter('threads', value=1)])
+    log: list[tuple[str, Any]] = []
+    for out in node.outputs.values():
+        out._publisher = _Recorder(out.topic, log)  # live path (no sink), no DDS
+    shifted = np.roll(FRAME.right_rect_gt, 3, axis=1)  # a second, different frame
+    try:
+        for i in range(6):
+            msgs = _inputs({'right': shifted} if i % 2 else None)
+            for msg in msgs:
+                msg.header.stamp.sec = 100 + i
+            node.on_frame(*msgs)
+        node._workers.drain()
+        assert node.drops == {}
+        assert len(node._window.frame_times) == 6
+    finally:
+        node.destroy_node()
+    matcher = SgmMatcher(sgm_params(node.params.values))
+    expected = [matcher.match(FRAME.left_rect_gt, FRAME.right_rect_gt).disparity.copy(),
+                matcher.match(FRAME.left_rect_gt, shifted).disparity.copy()]
+    for topic in ('/disparity', '/disparity_right', '/cost_ratio'):
+        stamps = [m.header.stamp.sec for t, m in log if t == topic]
+        assert stamps == list(range(100, 106)), topic
+    disparities = [m for t, m in log if t == '/disparity']
+    for i, msg in enumerate(disparities):
+        np.testing.assert_array_equal(read_disparity(msg).disparity, expected[i % 2])
+
+
+def test_a_failing_match_in_parallel_mode_is_a_counted_drop(context: Context,
+                                                            monkeypatch: Any) -> None:
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('parallel_frames', value=2)])
+    log: list[tuple[str, Any]] = []
+    for out in node.outputs.values():
+        out._publisher = _Recorder(out.topic, log)
+    calls = 0
+    lock = threading.Lock()  # the workers call match at the same time
+    real = SgmMatcher.match
+
+    def flaky(self: SgmMatcher, *args: Any, **kwargs: Any) -> Any:
+        nonlocal calls
+        with lock:
+            calls += 1
+            fail = calls == 2
+        if fail:
+            raise MemoryError('no room for the buffers')
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(SgmMatcher, 'match', flaky)
+    try:
+        for i in range(3):
+            msgs = _inputs()
+            for msg in msgs:
+                msg.header.stamp.sec = 200 + i
+            node.on_frame(*msgs)
+        node._workers.drain()
+    finally:
+        node.destroy_node()
+    assert node.drops == {'match_failed': 1}
+    assert len([m for t, m in log if t == '/disparity']) == 2
+
+
+def test_range_wider_than_the_image(context: Context) -> None:
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=200)])
+    node.sink = lambda topic, msg: None
+    try:
+        node.on_frame(*_inputs())
+        assert node.drops == {'range_too_wide': 1}
+    finally:
+        node.destroy_node()
+
+
+def test_missing_camera_info_is_counted(node: Any) -> None:
+    callbacks = [spec.callback for spec in node.inputs]
+    for i in range(7):  # images only: sets never complete, the queue (5) overflows
+        left, _, right, _ = _inputs()
+        for msg in (left, right):
+            msg.header.stamp.sec = i
+        callbacks[0](left)
+        callbacks[2](right)
+    assert node.outbox == {}
+    assert node.drops['sync_queue_full'] >= 2
+
+
+def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
+                                                            context: Context) -> None:
+    with tuner(node, context) as tune:
+        node.on_frame(*_inputs())
+        before = read_disparity(node.outbox['/disparity']).disparity.copy()
+        (result,) = tune(P2=900.0)
+        assert result.successful, result.reason
+        node.on_frame(*_inputs())
+        after = read_disparity(node.outbox['/disparity']).disparity
+        assert not np.array_equal(before, after, equal_nan=True)
+        expected = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                                   FRAME.right_rect_gt)
+        np.testing.assert_array_equal(after, expected.disparity)
+        (rejected,) = tune(P1=1000.0)
+        assert not rejected.successful
+        assert 'SGM parameter P2=900: must be >= P1 (1000)' in rejected.reason
+        (rejected,) = tune(paths=6)
+        assert not rejected.successful
+        assert 'must be one of 4, 5, 8, 16' in rejected.reason
+        (accepted,) = tune(disparity_range=50)  # any range for census_sgm
+        assert accepted.successful
+        (rejected,) = tune(stereo_algorithm=1)
+        assert not rejected.successful
+        assert ('disparity_range (50) must be a multiple of 16 with OpenCV StereoSGBM'
+                in rejected.reason)
+        assert node.params.values['P2'] == 900.0
+        assert node.params.values['stereo_algorithm'] == 2
+        results = tune(disparity_range=64, uniqueness_ratio=5.0, threads=1)
+        assert all(r.successful for r in results)
+        node.on_frame(*_inputs())
+        assert node.outbox['/disparity'].max_disparity == 63.0
+        assert numba.get_num_threads() == 1  # the kernels of this frame ran on one thread
+        one_thread = read_disparity(node.outbox['/disparity']).disparity.copy()
+        (result,) = tune(threads=0)
+        assert result.successful
+        node.on_frame(*_inputs())
+        assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
+        np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
+                                      one_thread)
+        (result,) = tune(paths=5)  # one pass: the matcher's single-pass mode from now on
+        assert result.successful
+        node.on_frame(*_inputs())
+        single = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                                 FRAME.right_rect_gt)
+        assert single.disparity.shape == one_thread.shape
+        np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
+                                      single.disparity)
+        assert not np.array_equal(single.disparity, one_thread, equal_nan=True)
+
+
+def test_the_checks_of_the_raw_output_are_parameters(node: Any, context: Context) -> None:
+    """The raw output's own checks (left-right, speckles, border extrapolation, brightness
+    matching) reach the matcher from the node's parameters: each change gives the core's
+    output for the new values, and switching them all off keeps every pixel."""
+    with tuner(node, context) as tune:
+        node.on_frame(*_inputs())
+        checked = read_disparity(node.outbox['/disparity']).disparity.copy()
+        results = tune(disp12_max_diff=-1, speckle_size=0, uniqueness_ratio=0.0,
+                       border_cost=3.5, border_extrapolation=1.0)
+        assert all(r.successful for r in results), results
+        node.on_frame(*_inputs())
+        loose = read_disparity(node.outbox['/disparity']).disparity.copy()
+        assert np.isfinite(loose).all()  # no check left: every pixel has a disparity
+        assert np.isnan(checked).sum() > 0
+        for change in ({'border_cost': 0.0}, {'match_brightness': False},
+                       {'disp12_max_diff': 1, 'speckle_size': 50, 'speckle_range': 1}):
+            results = tune(**change)
+            assert all(r.successful for r in results), results
+            node.on_frame(*_inputs())
+            want = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                                   FRAME.right_rect_gt)
+            np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
+                                          want.disparity)
+        (rejected,) = tune(border_extrapolation=1.5)
+        assert not rejected.successful
+        assert 'out of range' in rejected.reason
+
+
+def test_opencv_sgbm_matches_stereosgbm(context: Context) -> None:
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('stereo_algorithm', value=1), Parameter('disparity_range', value=48)])
+    outbox: dict[str, Any] = {}
+    node.sink = lambda topic, msg: outbox.__setitem__(topic, msg)
+    try:
+        node.on_frame(*_inputs())
+        assert set(outbox) == {'/disparity', '/disparity_right', '/cost_ratio'}
+        got = read_disparity(outbox['/disparity'])
+        expected = opencv_sgbm(FRAME.left_rect_gt, FRAME.right_rect_gt,
+                               opencv_settings(node.params.values), disparity_range=48)
+        np.testing.assert_array_equal(got.disparity, expected)
+        assert got.delta_d == pytest.approx(1 / 16)
+        # the right view: the mirrored pair, so x_left = x_right + d where both agree
+        right = read_disparity(outbox['/disparity_right']).disparity
+        mirrored = opencv_sgbm(FRAME.right_rect_gt[:, ::-1].copy(),
+                               FRAME.left_rect_gt[:, ::-1].copy(),
+                               opencv_settings(node.params.values), disparity_range=48)
+        np.testing.assert_array_equal(right, mirrored[:, ::-1])
+        ys, xs = np.nonzero(np.isfinite(expected))
+        xr = np.rint(xs - expected[ys, xs]).astype(int)
+        inside = (xr >= 0) & np.isfinite(right[ys, np.clip(xr, 0, None)])
+        agree = np.abs(right[ys[inside], xr[inside]] - expected[ys[inside], xs[inside]]) <= 1
+        assert agree.mean() > 0.8
+        assert np.isnan(image_to_array(outbox['/cost_ratio'])).all()
+        outbox.clear()
+        node.set_parameters([Parameter('right_view', value=False)])
+        node.on_frame(*_inputs())
+        assert set(outbox) == {'/disparity'}  # as stereo_image_proc
+    finally:
+        node.destroy_node()
+
+
+def test_compressed_and_bayer_inputs_match_the_raw_grey_pair(context: Context) -> None:
+    """image_transport: compressed takes CompressedImage on left|right/image_rect/compressed;
+    lossless PNG gives the raw pair's disparity bit for bit."""
+    from depth_nodes.ros.transport import compress_image
+
+    n = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('image_transport', value='compressed')])
+    capture(n)
+    try:
+        assert [spec.topic for spec in n.inputs] == [
+            '/left/image_rect/compressed', '/left/camera_info', '/right/image_rect/compressed',
+            '/right/camera_info']
+        msgs = _inputs()
+        msgs[0] = compress_image(FRAME.left_rect_gt, 'mono8', codec='png')
+        msgs[2] = compress_image(FRAME.right_rect_gt, 'mono8', codec='png')
+        n.on_frame(*msgs)
+        expected = SgmMatcher(sgm_params(n.params.values)).match(FRAME.left_rect_gt,
+                                                                  FRAME.right_rect_gt)
+        np.testing.assert_array_equal(read_disparity(n.outbox['/disparity']).disparity,
+                                      expected.disparity)
+        assert n.drops == {}
+    finally:
+        n.destroy_node()
+
+
+def test_hostile_compressed_and_bayer_inputs_are_counted(context: Context) -> None:
+    from sensor_msgs.msg import CompressedImage
+
+    from depth_nodes.ros.transport import compress_image
+
+    n = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('image_transport', value='compressed')])
+    capture(n)
+    try:
+        good = compress_image(FRAME.right_rect_gt, 'mono8', codec='png')
+        damaged = compress_image(FRAME.left_rect_gt, 'mono8', codec='jpeg')
+        damaged.data = bytes(damaged.data)[:50]
+        odd_bayer = compress_image(np.zeros((120, 159), np.uint8), 'bayer_rggb8', codec='png')
+        for left, reason in ((damaged, 'decode_failed'), (odd_bayer, 'malformed_image'),
+                             (CompressedImage(format='mono8; h264 compressed mono8',
+                                              data=bytes(good.data)), 'unsupported_format')):
+            msgs = _inputs()
+            msgs[0], msgs[2] = left, good
+            n.on_frame(*msgs)
+            assert n.drops[reason] == 1, n.drops
+        assert n.outbox == {}
+    finally:
+        n.destroy_node()
+
+
+def test_a_census_rule_is_the_same_in_the_core_and_in_the_node(node: Any,
+                                                                 context: Context) -> None:
+    """The node's census parameters come from SgmParams' settings: the same description,
+    and a value the core refuses is refused on set with the core's reason; P2's limit
+    follows the number of paths (4 paths take up to 16128, 8 only 7936)."""
+    from dataclasses import replace
+
+    from depth_nodes.core.settings import rules
+    from depth_nodes.core.sgm import SgmParams
+    from depth_nodes.errors import ArgumentError
+    from depth_nodes.nodes.sgm_stereo import CENSUS_ONLY
+    from depth_nodes.ros.params import ParamSpec
+
+    described = {p.name: p.description for p in node.params._specs.values()
+                 if isinstance(p, ParamSpec)}
+    for name, _, rule in rules(SgmParams):
+        if name in CENSUS_ONLY:
+            assert described[name] == 'census SGM: ' + rule.description
+    with tuner(node, context) as tune:
+        for name, bad in (('census_width', 6), ('intensity_cost', 'sad'),
+                          ('subpixel', 'cubic')):
+            (rejected,) = tune(**{name: bad})
+            assert not rejected.successful
+            with pytest.raises(ArgumentError, match=name) as core:
+                replace(SgmParams(), **{name: bad}).validate()
+            reason = str(core.value).split(': ', 1)[1]
+            assert rejected.reason == f'{name}={bad!r} rejected: {reason}'
+        assert all(r.successful for r in tune(paths=4, P2=16000.0))
+        (rejected,) = tune(paths=8)
+        assert not rejected.successful
+        assert 'SGM parameter P2=16000: must be <= 7936 with 8 paths' in rejected.reason
+        assert all(r.successful for r in tune(P2=7936.0, paths=8))
