@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml  # type: ignore[import-untyped]
+import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from depth_nodes.errors import CalibrationError, yaml_problem

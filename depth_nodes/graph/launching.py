@@ -90,7 +90,7 @@ def launch_description(config_name: str) -> Any:
     imported here, when a launch file runs.
     """
     from ament_index_python.packages import get_package_share_directory
-    from launch import LaunchDescription
+    from launch import LaunchDescription  # type: ignore[attr-defined,unused-ignore]
     from launch.actions import DeclareLaunchArgument, OpaqueFunction
     from launch.substitutions import LaunchConfiguration
     from launch_ros.actions import Node

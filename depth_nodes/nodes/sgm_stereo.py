@@ -229,11 +229,12 @@ def bm_settings(values: Mapping[str, Any]) -> BmSettings:
 def opencv_disparity(left: Any, right: Any, values: Mapping[str, Any]) -> Any:
     """The disparity of OpenCV's algorithm of ``values`` (stereo_algorithm 0 or 1) on a
     grey pair (16-bit images are taken at their top 8 bits, as cv_bridge's mono8 would)."""
-    pair = [to_uint8(a) for a in (left, right)]
+    left8, right8 = to_uint8(left), to_uint8(right)
     lo, n = values['min_disparity'], values['disparity_range']
     if values['stereo_algorithm'] == BLOCK_MATCHING:
-        return opencv_bm(*pair, bm_settings(values), min_disparity=lo, disparity_range=n)
-    return opencv_sgbm(*pair, opencv_settings(values), min_disparity=lo, disparity_range=n)
+        return opencv_bm(left8, right8, bm_settings(values), min_disparity=lo, disparity_range=n)
+    return opencv_sgbm(left8, right8, opencv_settings(values), min_disparity=lo,
+                       disparity_range=n)
 
 
 def _encoding(msg: Any) -> str:

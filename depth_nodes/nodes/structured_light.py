@@ -139,7 +139,8 @@ class StructuredLightNode(DepthNode):
         frame, drops = self.pairer.add_tag(stamp_to_ns(msg.stamp), msg)
         self._drops(drops)
         if frame is not None:
-            self._sequence_frame(*frame, msg)
+            image, info = frame
+            self._sequence_frame(image, info, msg)
 
     def on_frame(self, image: Image, info: CameraInfo) -> None:
         """An image with its camera_info: speckle now, or one frame of a sequence."""
@@ -231,7 +232,7 @@ class StructuredLightNode(DepthNode):
             return
         self._decode(frames, pattern_set, values)
 
-    def _grey(self, image: Image) -> NDArray[Any] | None:
+    def _grey(self, image: Image) -> Any:
         return self.gray_image(image, 'pattern image')
 
     def _geometry_for(self, info: CameraInfo) -> ProjectorGeometry | None:

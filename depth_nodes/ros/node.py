@@ -29,7 +29,7 @@ import threading
 import time
 import traceback
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,6 +40,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.utilities import ok, try_shutdown
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
@@ -103,7 +104,7 @@ class _Window:
 def _set_frame(msg: Any, frame: str) -> None:
     for holder in (msg, getattr(msg, 'image', None)):
         header = getattr(holder, 'header', None)
-        if header is not None:
+        if holder is not None and header is not None:
             holder.header = Header(stamp=header.stamp, frame_id=frame)
 
 
@@ -338,7 +339,7 @@ class DepthNode(Node):
 
     def add_synced_inputs(
         self,
-        inputs: list[tuple[type, str]] | list[tuple[type, str, str]],
+        inputs: Sequence[tuple[Any, ...]],
         callback: Callable[..., None],
         *,
         queue_size: int,
@@ -559,7 +560,7 @@ class DepthNode(Node):
         self._diagnostics_pub.publish(array)
 
 
-def run_node(node_class: type[DepthNode], args: list[str] | None = None) -> int:
+def run_node(node_class: Callable[[], DepthNode], args: list[str] | None = None) -> int:
     """Run one node until Ctrl-C: the body of every node's console script ``main``.
 
     Returns:
@@ -581,8 +582,8 @@ def run_node(node_class: type[DepthNode], args: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         try:
-            rclpy.try_shutdown()
+            try_shutdown()
         except Exception:  # rclpy's signal handler shut the context down meanwhile: fine
-            if rclpy.ok():
+            if ok():
                 raise
     return 0

@@ -19,7 +19,7 @@ of 16. ``rgb`` is ``0x00RRGGBB`` as uint32 reinterpreted as float32, as PCL does
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -154,7 +154,7 @@ def read_pointcloud(msg: Any) -> dict[str, NDArray[Any]]:
     """
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
-    order = '>' if msg.is_bigendian else '<'
+    order: Literal['>', '<'] = '>' if msg.is_bigendian else '<'
     if point_step <= 0:
         raise MessageError(f'PointCloud2 point_step must be positive, got {point_step}')
     names, formats, offsets = [], [], []

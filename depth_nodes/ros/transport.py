@@ -78,7 +78,8 @@ def transport_type(transport: str) -> type:
     if transport not in TRANSPORTS:
         raise UnsupportedFormatError(f'image_transport {transport!r} is not one of '
                                      f'{", ".join(TRANSPORTS)}')
-    return Image if transport == 'raw' else CompressedImage
+    message: type = Image if transport == 'raw' else CompressedImage
+    return message
 
 
 def is_compressed(msg: Any) -> bool:

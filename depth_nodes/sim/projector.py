@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -278,7 +279,8 @@ class ProjectorCameraSim:
 
     def illumination(self, pattern: NDArray[np.floating]) -> F64:
         """Projected intensity in [0, 1] at every sample: defocused ``pattern`` (H_p, W_p)."""
-        big = np.repeat(np.repeat(np.asarray(pattern, dtype=np.float32), _UP, 0), _UP, 1)
+        big: NDArray[Any] = np.repeat(np.repeat(np.asarray(pattern, dtype=np.float32), _UP, 0),
+                                      _UP, 1)
         if self.config.defocus_sigma > 0:
             big = cv2.GaussianBlur(big, (0, 0), self.config.defocus_sigma * _UP)
         cols = self.config.width

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import os
 import sys
 from collections.abc import Sequence
@@ -33,6 +34,11 @@ BUNDLED_BAGS = Path(__file__).resolve().parents[2] / 'bags'
 def _cmd_generate(args: argparse.Namespace) -> int:
     with signals.graceful():
         return _generate(args)
+
+
+def _frame_done(count: int, index: int) -> None:
+    """Progress of `generate` on stderr."""
+    print(f'  frame {index + 1}/{count}', file=sys.stderr)
 
 
 def _generate(args: argparse.Namespace) -> int:
@@ -77,7 +83,7 @@ def _generate(args: argparse.Namespace) -> int:
             config = dataclasses.replace(config, n_frames=args.frames)
         count = write_stereo_bag(
             path, config, overwrite=args.force,
-            on_frame=lambda i, n=config.n_frames: print(f'  frame {i + 1}/{n}', file=sys.stderr),
+            on_frame=functools.partial(_frame_done, config.n_frames),
         )
         size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
         frames = (f'{config.n_frames} frames' if not signals.stop_requested() else
@@ -378,7 +384,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     cv2.setNumThreads(threads)
     import numba
 
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     if args.stage == 'rectify':
         print(bench_rectify(width=args.width, height=args.height, repeats=args.frames or 200,
                             interpolation=args.interpolation).format())

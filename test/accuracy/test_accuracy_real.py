@@ -29,22 +29,16 @@ from depth_nodes.tools.evaluation.evaluate import EvalReport
 NONOCC_BAD1 = {'teddy': 0.060, 'cones': 0.030}
 
 
-@pytest.fixture(params=['real_reports', 'real_reports_8_paths'])
-def reports(request: pytest.FixtureRequest) -> dict[str, tuple[Path, EvalReport]]:
-    """The shipped graph (5 paths) and the same with 8 paths: both meet the targets."""
-    return request.getfixturevalue(request.param)  # type: ignore[no-any-return]
-
-
 @pytest.mark.parametrize('pair', sorted(NONOCC_BAD1))
-def test_real_pairs_beat_opencv(reports: dict[str, tuple[Path, EvalReport]],
+def test_real_pairs_beat_opencv(real: dict[str, tuple[Path, EvalReport]],
                                 pair: str) -> None:
-    assert_beats_opencv(reports[pair][1])
+    assert_beats_opencv(real[pair][1])
 
 
 @pytest.mark.parametrize('pair', sorted(NONOCC_BAD1))
-def test_dense_output_beats_published_sgm(reports: dict[str, tuple[Path, EvalReport]],
+def test_dense_output_beats_published_sgm(real: dict[str, tuple[Path, EvalReport]],
                                           pair: str) -> None:
-    report = reports[pair][1]
+    report = real[pair][1]
     checked = report.row(CHECKED)
     assert report.nonocc_source == '/stereo/left/occlusion_gt'
     assert 0.85 < report.nonocc_fraction < 0.92  # the derived mask: 89 % and 88 % visible

@@ -258,13 +258,13 @@ class BagWriter(_Closing):
 
 def _set_chunk_compression_level(writer: Writer, level: int) -> None:
     """Swap the MCAP storage's chunk compressor for one with an explicit zstd level."""
-    storage = writer.storage
+    storage: Any = writer.storage
     if not hasattr(storage, 'compressor'):
         raise BagError('this rosbags version does not allow a zstd level for MCAP chunks')
     try:
         from compression import zstd  # type: ignore[import-not-found]
     except ImportError:
-        from backports import zstd  # type: ignore[import-not-found,no-redef]
+        from backports import zstd  # type: ignore[import-not-found,no-redef,unused-ignore]
     storage.compressor = functools.partial(zstd.compress, level=level)
 
 
@@ -281,7 +281,7 @@ def _write_chunk_crcs(writer: Writer) -> None:
     `process` went unnoticed by `process`, `play` and `eval`). The CRC is patched into the
     chunk record just written.
     """
-    storage = writer.storage
+    storage: Any = writer.storage  # rosbags' MCAP storage: private attributes
     if not all(hasattr(storage, a) for a in ('close_chunk', 'chunk', 'bio')):
         return  # another storage: nothing to add
     original = storage.close_chunk

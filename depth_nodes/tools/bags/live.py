@@ -31,6 +31,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
 
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.graph.description import checked_namespace
@@ -390,5 +391,5 @@ def record_bag(path: str | Path, topics: Iterable[str], *, duration: float | Non
         count = recorder.count if recorder else 0
         if recorder is not None:
             recorder.close()
-        rclpy.try_shutdown()
+        try_shutdown()
     return count

@@ -155,7 +155,7 @@ def _occlusion(source: PairSource, gt: NDArray[np.float32]) -> tuple[NDArray[np.
                                  f'one channel of {gt.shape[1]}x{gt.shape[0]}, got '
                                  f'{mask.shape[1]}x{mask.shape[0]}'
                                  f'{"" if mask.ndim == 2 else "x" + str(mask.shape[2])}')
-        occlusion = np.where(mask > 0, VISIBLE, OCCLUDED).astype(np.uint8)
+        occlusion = np.where(np.asarray(mask, np.float64) > 0, VISIBLE, OCCLUDED).astype(np.uint8)
         return occlusion, f'mask {source.nonoccluded_mask.name}'
     if source.ground_truth_right is not None:
         right = read_disparity_file(source.ground_truth_right, fmt=source.gt_format,

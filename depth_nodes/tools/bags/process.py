@@ -97,8 +97,8 @@ class ProcessReport:
         total_drops = sum(sum(c.values()) for c in self.drops.values())
         lines.append(f'dropped: {total_drops}')
         for node, counter in sorted(self.drops.items()):
-            for reason, count in sorted(counter.items()):
-                lines.append(f'  {node:<30} {reason:<28} {count:>6}')
+            for reason, n in sorted(counter.items()):
+                lines.append(f'  {node:<30} {reason:<28} {n:>6}')
         for topic in self.shadowed:
             lines.append(f'note: input topic {topic} is also published by a node; '
                          'only the node output was written')

@@ -61,8 +61,9 @@ def bench_cross_check(repeats: int = 20) -> CrossCheckBench:
     matcher = SgmMatcher(SgmParams(disparity_range=128))
     left, right = frame.left_rect_gt, frame.right_rect_gt
     result = matcher.match(left, right)
-    common = {'focal': stereo.focal, 'baseline': stereo.baseline, 'min_disparity': 0.0,
-              'max_disparity': 127.0, 'delta_d': 1 / 32, 'valid_window': (0, 0, w, h)}
+    common: dict[str, Any] = {
+        'focal': stereo.focal, 'baseline': stereo.baseline, 'min_disparity': 0.0,
+        'max_disparity': 127.0, 'delta_d': 1 / 32, 'valid_window': (0, 0, w, h)}
     msgs = [build_disparity(result.disparity, None, **common),
             build_disparity(result.disparity_right, None, **common),
             array_to_image(result.cost_ratio, '32FC1')]

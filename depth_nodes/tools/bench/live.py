@@ -25,6 +25,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.utilities import try_shutdown
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import GraphConfig, load_graph_config
@@ -231,7 +232,7 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
         graph.stop()
         executor.shutdown()
         node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        try_shutdown(context=context)
         spinner.join(timeout=5)
     done = sorted(feeder.arrived[final_topic][s] for s in timed
                   if s in feeder.arrived[final_topic])

@@ -37,6 +37,7 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.utilities import try_shutdown
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import load_graph_config
@@ -209,7 +210,7 @@ def soak(*, duration: float = 1800.0, rate: float = 10.0, tune_every: float = 10
             graph.stop()
             executor.shutdown()
             node.destroy_node()
-            rclpy.try_shutdown(context=context)
+            try_shutdown(context=context)
             spinner.join(timeout=5)
     report.drops = {name: {k[len('drops '):]: int(v) for k, v in values.items()
                            if k.startswith('drops ') and k != 'drops total'}

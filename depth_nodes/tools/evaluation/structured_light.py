@@ -78,7 +78,7 @@ def opencv_gray_columns(gray_frames: NDArray[np.uint8], projector_width: int, *,
     """
     if not opencv_available():
         raise RuntimeError('cv2.structured_light is not available (needs opencv-contrib)')
-    sl = cv2.structured_light  # type: ignore[attr-defined]
+    sl = cv2.structured_light
     # OpenCV always codes rows too and crashes for height 1: height 2 has one row bit, fed
     # with the white and black frames (row 1, never an error). Columns are untouched.
     pattern = sl.GrayCodePattern.create(projector_width, 2)

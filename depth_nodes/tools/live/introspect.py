@@ -29,6 +29,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
 
 from depth_nodes.errors import ConfigError, DepthNodesError
 from depth_nodes.tools.bags.io import message_class
@@ -59,7 +60,7 @@ def graph_node(kind: str) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
     finally:
         executor.shutdown()
         node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        try_shutdown(context=context)
 
 
 def _spin_for(executor: SingleThreadedExecutor, seconds: float) -> None:

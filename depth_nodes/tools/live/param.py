@@ -25,6 +25,7 @@ from rclpy.exceptions import InvalidNamespaceException, InvalidNodeNameException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
+from rclpy.utilities import try_shutdown
 from rclpy.validate_namespace import validate_namespace
 from rclpy.validate_node_name import validate_node_name
 
@@ -153,8 +154,8 @@ def nest(values: Mapping[str, Any]) -> dict[str, Any]:
 
 def dump_yaml(node: str, values: Mapping[str, Any]) -> str:
     """A parameter file for ``--params-file``: ``/ns/node: {ros__parameters: {...}}``."""
-    return yaml.safe_dump({node: {'ros__parameters': nest(values)}},
-                          default_flow_style=False, sort_keys=True)
+    return str(yaml.safe_dump({node: {'ros__parameters': nest(values)}},
+                              default_flow_style=False, sort_keys=True))
 
 
 def srv_name(verb: str) -> str:
@@ -265,7 +266,7 @@ def connect(node: str, verbs: tuple[str, ...], *,
             executor.shutdown()
             local.destroy_node()
     finally:
-        rclpy.try_shutdown(context=context)
+        try_shutdown(context=context)
 
 
 def list_parameters(node: str, *, timeout: float = DEFAULT_TIMEOUT) -> list[str]:

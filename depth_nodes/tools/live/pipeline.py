@@ -35,6 +35,7 @@ from rclpy.executors import (
     SingleThreadedExecutor,
 )
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import try_shutdown
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import (
@@ -171,7 +172,7 @@ def _stop(context: Context, nodes: list[Any], executors: list[Any],
     thread still waited freed the guard condition it waited on: a segfault in about one
     stop in six.)"""
     try:
-        rclpy.try_shutdown(context=context)
+        try_shutdown(context=context)
     except Exception:  # rclpy's signal handler shut it down in between: fine
         if context.ok():
             raise

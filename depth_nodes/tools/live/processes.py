@@ -244,11 +244,12 @@ def _watched_type(topic: str) -> type:
     from stereo_msgs.msg import DisparityImage
 
     leaf = topic.rsplit('/', 1)[-1]
+    watched: type = Image
     if leaf.startswith('disparity'):
-        return DisparityImage
-    if leaf.startswith('points'):
-        return PointCloud2
-    return Image
+        watched = DisparityImage
+    elif leaf.startswith('points'):
+        watched = PointCloud2
+    return watched
 
 
 def load_stereo_frames(bag: str | Path, namespace: str = '/stereo') -> list[StereoFrame]:
@@ -266,5 +267,5 @@ def load_stereo_frames(bag: str | Path, namespace: str = '/stereo') -> list[Ster
             msg = bag_msg.deserialize()
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             by_stamp.setdefault(stamp, {})[bag_msg.topic] = msg
-    return [tuple(parts[t] for t in topics)  # type: ignore[misc]
+    return [tuple(parts[t] for t in topics)  # type: ignore[misc,unused-ignore]
             for _, parts in sorted(by_stamp.items()) if len(parts) == len(topics)]
