@@ -60,6 +60,7 @@ from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
 from depth_nodes.core.sgm.matcher import P2_MAX
 from depth_nodes.core.sgm.select import SUBPIXEL_STEP
+from depth_nodes.errors import ArgumentError
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image, to_uint8
 from depth_nodes.ros.node import DepthNode, run_node
@@ -304,9 +305,10 @@ class SgmStereoNode(DepthNode):
                       f'{stereo.left.width}x{stereo.left.height}')
             return
         lo, n = values['min_disparity'], values['disparity_range']
-        if n >= w or not -w < lo < w:
-            self.drop('range_too_wide', f'disparities {lo}..{lo + n - 1} do not fit an image '
-                      f'{w} px wide')
+        try:  # the one rule of the frame, the same for every algorithm
+            SgmParams(min_disparity=lo, disparity_range=n).check_width(w)
+        except ArgumentError as exc:
+            self.drop('range_too_wide', f'{exc} (disparities {lo}..{lo + n - 1})')
             return
         header = left_msg.header
         common = {'focal': stereo.focal, 'baseline': stereo.baseline, 'min_disparity': lo,

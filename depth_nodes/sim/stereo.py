@@ -175,17 +175,11 @@ def validate_config(config: StereoSimConfig) -> None:
 def stereo_rig(config: StereoSimConfig) -> tuple[CameraModel, CameraModel]:
     """The (left, right) cameras of ``config``; see :func:`depth_nodes.sim.rig.make_rig`."""
     validate_config(config)
-    return make_rig(
-        width=config.width,
-        height=config.height,
-        focal_px=config.focal,
-        baseline_m=config.baseline_m,
-        right_cx_offset=config.right_cx_offset,
-        distortion_model=config.distortion_model,
-        rotation_deg=config.rotation_deg,
-        seed=config.seed,
-        distortion_scale=config.distortion_scale,
-    )
+    return make_rig(width=config.width, height=config.height, focal_px=config.focal,
+                    baseline_m=config.baseline_m, right_cx_offset=config.right_cx_offset,
+                    distortion_model=config.distortion_model,
+                    rotation_deg=config.rotation_deg, seed=config.seed,
+                    distortion_scale=config.distortion_scale)
 
 
 # ------------------------------------------------------------------ rendering

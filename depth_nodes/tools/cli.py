@@ -392,11 +392,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         print(bench_sgm(repeats=args.frames or 10, disparities=args.disparities,
                         paths=args.paths or 8).format())
     elif args.stage == 'cross_check':
-        from depth_nodes.tools.bench.cross_check import bench_cross_check
+        from depth_nodes.tools.bench.nodes import bench_cross_check
 
         print(bench_cross_check(repeats=args.frames or 20).format())
     elif args.stage == 'point_cloud':
-        from depth_nodes.tools.bench.point_cloud import bench_point_cloud
+        from depth_nodes.tools.bench.nodes import bench_point_cloud
 
         print(bench_point_cloud(repeats=args.frames or 20).format())
     elif args.stage == 'structured_light':

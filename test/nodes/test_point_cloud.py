@@ -347,7 +347,7 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
 
 
 def test_bench_reports_times_and_sizes(ros_env: dict[str, str]) -> None:
-    from depth_nodes.tools.bench.point_cloud import bench_point_cloud
+    from depth_nodes.tools.bench.nodes import bench_point_cloud
 
     bench = bench_point_cloud(1)
     assert (bench.width, bench.height, bench.point_step) == (640, 480, 32)

@@ -108,15 +108,16 @@ class SgmParams:
     speckle_range: float = setting(2.0, 'Largest disparity step in px within one speckle '
                                    'region', low=0.0, high=64.0)
 
+    def _bad(self, name: str, why: str) -> ArgumentError:
+        return ArgumentError(f'{LABEL} {name}={getattr(self, name)!r}: {why}')
+
     def validate(self, width: int | None = None) -> SgmParams:
-        """Check every field (and the range against ``width``); returns self.
+        """Check every field (and, with ``width``, :meth:`check_width`); returns self.
 
         Raises:
             ArgumentError: naming the first invalid field and why.
         """
-        def bad(name: str, why: str) -> ArgumentError:
-            return ArgumentError(f'{LABEL} {name}={getattr(self, name)!r}: {why}')
-
+        bad = self._bad
         check_settings(self, LABEL)
         if self.census_width * self.census_height - 1 > 63:
             raise bad('census_width', f'a {self.census_width}x{self.census_height} window has '
@@ -131,10 +132,18 @@ class SgmParams:
         if limit < self.P2:
             raise bad('P2', f'must be <= {limit} with {self.paths} paths, so that the 16-bit '
                       'sum of the paths cannot overflow')
-        if width is not None and self.disparity_range >= width:
-            raise bad('disparity_range', f'is not smaller than the image width {width}')
-        if width is not None and not -width < self.min_disparity < width:
-            raise bad('min_disparity', f'is outside (-{width}, {width})')
+        return self if width is None else self.check_width(width)
+
+    def check_width(self, width: int) -> SgmParams:
+        """The rules that depend on the frame: the disparity window fits ``width``.
+
+        Raises:
+            ArgumentError: It does not.
+        """
+        if self.disparity_range >= width:
+            raise self._bad('disparity_range', f'is not smaller than the image width {width}')
+        if not -width < self.min_disparity < width:
+            raise self._bad('min_disparity', f'is outside (-{width}, {width})')
         return self
 
 
@@ -228,7 +237,7 @@ class SgmMatcher:
             raise ArgumentError(f'left {left.shape} and right {right.shape} must have one '
                                 'size')
         h, w = left.shape
-        p = self.params.validate(w)
+        p = self.params.check_width(w)  # the rest was checked when the params were set
         b = self._buffers(h, w)
         left_f = np.ascontiguousarray(left, dtype=np.float32)
         cost = cost_volume(
