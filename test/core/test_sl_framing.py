@@ -42,6 +42,15 @@ def test_broken_sequence_is_dropped_then_the_next_one_decodes(tags: list[str],
     assert done == [['9:0/3', '9:1/3', '9:2/3']]
 
 
+def test_a_frame_from_further_back_drops_the_sequence() -> None:
+    """Frame 1 again after frames 0, 1, 2 of four (not the one just before: that is a
+    repeat): out of order; the rest of the sequence is skipped until the next start."""
+    done, reasons = _feed(['1:0/4', '1:1/4', '1:2/4', '1:1/4', '1:3/4',
+                           '2:0/4', '2:1/4', '2:2/4', '2:3/4'], count=4)
+    assert reasons == ['sequence_out_of_order', 'sequence_resync']
+    assert done == [['2:0/4', '2:1/4', '2:2/4', '2:3/4']]
+
+
 def test_out_of_order_frames_never_mix() -> None:
     done, reasons = _feed(['1:0/3', '1:1/3', '2:0/3', '1:2/3', '2:1/3', '2:2/3'])
     assert done == []

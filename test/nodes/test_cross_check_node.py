@@ -268,3 +268,17 @@ def test_disp12_max_diff_zero_is_one_and_minus_one_is_off(context: Context) -> N
         (lr.labels == OCCLUDED) & np.isfinite(lr.difference))
     np.testing.assert_array_equal(np.isfinite(kept), with_partner)
     assert (lr.labels == MISMATCH).any()  # there was something to drop
+
+
+def test_a_set_still_incomplete_when_the_stream_ends_is_counted(node: Any) -> None:
+    """The offline harness ends the stream: the frame still waiting for its partners is
+    one stream_ended drop, not lost silently."""
+    left, right, _ = _inputs()
+    callbacks = {spec.topic: spec.callback for spec in node.inputs}
+    callbacks['/disparity'](left)
+    callbacks['/disparity_right'](right)
+    assert node.drops == {}
+    node.finish_stream()
+    assert node.drops == {'stream_ended': 1}
+    assert node.outbox == {}
+
