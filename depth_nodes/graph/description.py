@@ -221,11 +221,26 @@ def checked_namespace(value: str, what: str = '--namespace') -> str:
     return '/' + value.strip('/')
 
 
+def _flatten(params: dict[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Nested parameter names as ROS reads them: ``{qos_overrides: {/t: {publisher:
+    {depth: 5}}}}`` is ``qos_overrides./t.publisher.depth`` (what ``ros2 param dump`` and
+    ``depth-nodes param dump`` write)."""
+    flat: dict[str, Any] = {}
+    for key, value in params.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f'{name}.'))
+        else:
+            flat[name] = value
+    return flat
+
+
 def load_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
     """Read a ROS 2 parameter file into ``{node key: {name: value}}``.
 
     Node keys are as written (``rectify_left``, ``/stereo/rectify_left`` or ``/**``);
-    nested namespaces (``stereo: {rectify_left: {ros__parameters: ...}}``) are flattened.
+    nested namespaces (``stereo: {rectify_left: {ros__parameters: ...}}``) and nested
+    parameter names (``qos_overrides: {...}``) are flattened.
 
     Raises:
         ConfigError: The file is missing, not YAML, or has no ``ros__parameters``.
@@ -242,7 +257,7 @@ def load_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
                 if not isinstance(value, dict):
                     raise ConfigError(f'parameter file {path}: ros__parameters of {prefix} '
                                       'must be a mapping')
-                out[prefix or '/**'] = dict(value)
+                out[prefix or '/**'] = _flatten(value)
             elif isinstance(value, dict):
                 walk(f'{prefix}/{key}' if prefix else str(key), value)
             else:

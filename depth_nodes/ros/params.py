@@ -52,6 +52,7 @@ class ParamSpec:
         read_only: Only settable at start-up (``--ros-args -p`` or a params file).
         dynamic_typing: Accept values of more than one type (``check`` must vet them).
         check: Extra validation: returns None when fine, else the reason.
+        constraints: What ``check`` enforces, in words (``ros2 param describe`` shows it).
     """
 
     name: str
@@ -62,11 +63,13 @@ class ParamSpec:
     read_only: bool = False
     dynamic_typing: bool = False
     check: Check | None = None
+    constraints: str = ''
 
     def descriptor(self) -> ParameterDescriptor:
         """The ROS descriptor: description, range, read-only and typing flags."""
         desc = ParameterDescriptor(description=self.description, read_only=self.read_only,
-                                   dynamic_typing=self.dynamic_typing)
+                                   dynamic_typing=self.dynamic_typing,
+                                   additional_constraints=self.constraints)
         if self.min_value is not None and self.max_value is not None:
             if isinstance(self.default, int) and not isinstance(self.default, bool):
                 desc.integer_range = [IntegerRange(from_value=int(self.min_value),
@@ -146,10 +149,15 @@ def spec_of(name: str, default: Any, rule: Rule, *, prefix: str = '',
     its description, its range in the descriptor, its other rules (choices, odd, number)
     checked on set with the same reason the core gives."""
     ranged = rule.low is not None and rule.high is not None and not rule.number
+    said = [f'one of {", ".join(map(str, rule.choices))}' if rule.choices else '',
+            'odd' if rule.odd else '',
+            f'integer or double in [{rule.low:g}, {rule.high:g}]' if rule.number and
+            rule.low is not None and rule.high is not None else '']
     return ParamSpec(name, default, prefix + rule.description,
                      rule.low if ranged else None, rule.high if ranged else None,
                      read_only=read_only, dynamic_typing=rule.number,
-                     check=lambda value: problem(rule, value))
+                     check=lambda value: problem(rule, value),
+                     constraints='; '.join(s for s in said if s))
 
 
 def specs_from(params: type, names: tuple[str, ...] | list[str], *,

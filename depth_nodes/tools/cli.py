@@ -18,7 +18,7 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.tools import signals
@@ -248,7 +248,7 @@ def _cmd_param(args: argparse.Namespace) -> int:
             if names is None:
                 print(f'  (no answer within {args.timeout:g} s)')
                 continue
-            print('\n'.join(f'  {name}' for name in names))
+            print('\n'.join(f'  {name}' for name in names) or '  (no parameter services)')
     elif args.verb == 'list':
         print('\n'.join(param.list_parameters(args.node, timeout=args.timeout)))
     elif args.verb == 'get':
@@ -257,6 +257,8 @@ def _cmd_param(args: argparse.Namespace) -> int:
     elif args.verb == 'set':
         param.set_parameter(args.node, args.name, args.value, timeout=args.timeout)
         print('Set parameter successful')
+    elif args.verb == 'describe':
+        print(param.describe_parameter(args.node, args.name, timeout=args.timeout))
     elif args.verb == 'dump':
         print(param.dump_parameters(args.node, timeout=args.timeout), end='')
     return 0
@@ -415,6 +417,17 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_ERROR, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
 
 
+class _Once(argparse.Action):
+    """An option that may be given once: a second one would silently replace the first."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        if getattr(namespace, self.dest, None) is not None:
+            parser.error(f'{option_string} given twice: merge the files into one (a later '
+                         'entry for the same node and parameter wins within a file)')
+        setattr(namespace, self.dest, values)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the `depth-nodes` command."""
     parser = _Parser(prog='depth-nodes', description=__doc__.split('\n')[0])
@@ -437,7 +450,8 @@ def build_parser() -> argparse.ArgumentParser:
     proc.add_argument('in_bag')
     proc.add_argument('out_bag')
     proc.add_argument('--config', help='graph YAML (default: config/stereo_pipeline.yaml)')
-    proc.add_argument('--params', help='ROS 2 parameter file overriding node parameters')
+    proc.add_argument('--params', action=_Once,
+                      help='ROS 2 parameter file overriding node parameters')
     proc.add_argument('--nodes', nargs='+', help='run only these nodes of the graph')
     proc.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
     _camera_options(proc, auto=True)
@@ -507,7 +521,8 @@ def build_parser() -> argparse.ArgumentParser:
                           epilog='Anything after --ros-args goes to rclpy (e.g. '
                           '--ros-args --log-level debug).')
     pipe.add_argument('--config', help='graph YAML (default: config/stereo_pipeline.yaml)')
-    pipe.add_argument('--params', help='ROS 2 parameter file overriding node parameters')
+    pipe.add_argument('--params', action=_Once,
+                      help='ROS 2 parameter file overriding node parameters')
     pipe.add_argument('--threads', type=int,
                       help='threads of each node\'s executor (default 1: a node handles one '
                       'callback at a time, the nodes run beside each other)')
@@ -550,12 +565,14 @@ def build_parser() -> argparse.ArgumentParser:
     par = sub.add_parser('param', help="a running node's parameters (like ros2 param)")
     verbs = par.add_subparsers(dest='verb', required=True)
     for verb, what in [('list', 'parameter names, sorted'), ('get', 'one value'),
-                       ('set', 'change one value'), ('dump', 'all values as a params file')]:
+                       ('set', 'change one value'),
+                       ('describe', 'type, description and range of one parameter'),
+                       ('dump', 'all values as a params file')]:
         cmd = verbs.add_parser(verb, help=what)
         cmd.add_argument('node', nargs='?' if verb == 'list' else None,
                          help='node name, e.g. /stereo/sgm_stereo' + (
                              ' (list: every node when left out)' if verb == 'list' else ''))
-        if verb in ('get', 'set'):
+        if verb in ('get', 'set', 'describe'):
             cmd.add_argument('name', help='parameter name')
         if verb == 'set':
             cmd.add_argument('value', help='YAML value: 5, 5.0, true, [1, 2], text')
@@ -674,7 +691,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if '--ros-args' in argv:  # rclpy's arguments, for `pipeline`
         ros_args = argv[argv.index('--ros-args'):]
         argv = argv[:argv.index('--ros-args')]
-    args = build_parser().parse_args(argv)
+    args, extras = build_parser().parse_known_args(argv)
+    if extras:  # said by the subcommand, as every other mistake is
+        print(f'depth-nodes {args.command}: error: unrecognized arguments: '
+              f'{" ".join(extras)} (see depth-nodes {args.command} --help)', file=sys.stderr)
+        return EXIT_ERROR
     args.ros_args = ros_args
     from depth_nodes.ros.dds import use_large_message_profile
     from depth_nodes.ros.memory import keep_freed_memory

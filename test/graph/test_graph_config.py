@@ -141,3 +141,18 @@ def test_unknown_parameter_is_an_error(tmp_path: Path, ros_env: dict[str, str]) 
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_nested_parameter_names_are_flattened(tmp_path: Path) -> None:
+    """What a parameter dump writes: qos_overrides as nested maps, read as ROS reads them."""
+    params = load_params_file(_write(tmp_path, """
+/stereo/sgm_stereo:
+  ros__parameters:
+    P2: 300.0
+    qos_overrides:
+      /stereo/disparity:
+        publisher: {depth: 5, reliability: reliable}
+""", 'dump.yaml'))
+    assert params == {'/stereo/sgm_stereo': {
+        'P2': 300.0, 'qos_overrides./stereo/disparity.publisher.depth': 5,
+        'qos_overrides./stereo/disparity.publisher.reliability': 'reliable'}}

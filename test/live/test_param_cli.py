@@ -215,3 +215,24 @@ def test_dump_round_trips_through_params_file(graph: dict[str, str], tmp_path: P
     finally:
         output = interrupt(proc)
     assert proc.returncode == 0, output  # a clean exit on Ctrl-C
+    # and the offline harness takes the same file (nested qos_overrides included)
+    processed = run_cli(['process', str(REPO / 'bags' / 'stereo_qvga_color'),
+                         str(tmp_path / 'out'), '--params', str(params_file)])
+    assert processed.returncode == 0, processed.stderr
+
+
+def test_describe_shows_the_rule_the_core_defines(graph: dict[str, str]) -> None:
+    """census_width's description, range and oddness come from SgmParams' setting."""
+    from depth_nodes.core.settings import rule_of
+    from depth_nodes.core.sgm import SgmParams
+
+    result = _param(graph, 'describe', NODE, 'census_width')
+    assert result.returncode == 0, result.stderr
+    rule = rule_of(SgmParams, 'census_width')
+    assert result.stdout.splitlines() == [
+        'Parameter name: census_width', '  Type: integer',
+        f'  Description: census SGM: {rule.description}', '  Constraints:',
+        '    Min value: 3', '    Max value: 9', '  Other constraints: odd']
+    missing = _param(graph, 'describe', NODE, 'census_wdith')
+    assert missing.returncode == 1
+    assert f"node {NODE} has no parameter 'census_wdith'" in missing.stderr

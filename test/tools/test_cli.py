@@ -92,6 +92,9 @@ def test_bad_graph_config_and_params(tmp_path: Path, ros_env: dict[str, str]) ->
     (['process'], 'the following arguments are required: in_bag, out_bag'),
     (['eval', 'x', '--threshold', 'two'], "argument --threshold: invalid float value: 'two'"),
     (['bench', 'sgm', '--paths', '6'], 'argument --paths: invalid choice: 6'),
+    (['eval', 'x', '--bogus'], 'depth-nodes eval: error: unrecognized arguments: --bogus'),
+    (['process', 'a', 'b', '--params', 'p.yaml', '--params', 'q.yaml'],
+     'depth-nodes process: error: --params given twice'),
 ])
 def test_usage_errors_are_one_line_and_exit_1(args: list[str], message: str) -> None:
     """argparse's own errors follow the command's rule too: one line, status 1 (argparse

@@ -127,7 +127,9 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
     # Stopping is ours (tools/signals.py): rclpy's handler would shut the context down
     # under a publish() in progress ("rcl_shutdown already called").
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    node = Node('depth_nodes_player')
+    # no parameter services: the loop below publishes and never spins them, so a
+    # `param list` of the graph would wait for an answer that cannot come
+    node = Node('depth_nodes_player', start_parameter_services=False)
     try:
         pubs = {t: node.create_publisher(message_class(reader.topics[t]), remap.get(t, t),
                                          _offered(reader.qos.get(t, [])))

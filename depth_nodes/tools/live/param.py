@@ -315,6 +315,40 @@ def set_parameter(node: str, name: str, text: str, *,
         return value
 
 
+#: Type names as ``ros2 param describe`` prints them.
+_TYPE_NAMES = {
+    ParameterType.PARAMETER_BOOL: 'boolean', ParameterType.PARAMETER_INTEGER: 'integer',
+    ParameterType.PARAMETER_DOUBLE: 'double', ParameterType.PARAMETER_STRING: 'string',
+    ParameterType.PARAMETER_BYTE_ARRAY: 'byte array',
+    ParameterType.PARAMETER_BOOL_ARRAY: 'boolean array',
+    ParameterType.PARAMETER_INTEGER_ARRAY: 'integer array',
+    ParameterType.PARAMETER_DOUBLE_ARRAY: 'double array',
+    ParameterType.PARAMETER_STRING_ARRAY: 'string array',
+}
+
+
+def describe_parameter(node: str, name: str, *, timeout: float = DEFAULT_TIMEOUT) -> str:
+    """What ``ros2 param describe`` prints: type, description, read-only and range.
+
+    Raises:
+        ConfigError: The node has no such parameter.
+    """
+    with connect(node, ('describe', 'list'), timeout=timeout) as client:
+        if name not in client.names():
+            raise ConfigError(f'node {client.target} has no parameter {name!r}')
+        (d,) = client.call('describe', DescribeParameters.Request(names=[name])).descriptors
+    lines = [f'Parameter name: {name}', f'  Type: {_TYPE_NAMES.get(d.type, "not set")}',
+             f'  Description: {d.description}']
+    if d.read_only or d.dynamic_typing:
+        lines.append('  Read only: yes' if d.read_only else '  Dynamic typing: yes')
+    for ranged in (*d.integer_range, *d.floating_point_range):
+        lines += ['  Constraints:', f'    Min value: {ranged.from_value}',
+                  f'    Max value: {ranged.to_value}']
+    if d.additional_constraints:
+        lines.append(f'  Other constraints: {d.additional_constraints}')
+    return '\n'.join(lines)
+
+
 def dump_parameters(node: str, *, timeout: float = DEFAULT_TIMEOUT) -> str:
     """Every parameter of ``node`` as a parameter file (``ros2 param dump``)."""
     with connect(node, ('list', 'get'), timeout=timeout) as client:
@@ -327,19 +361,46 @@ def dump_parameters(node: str, *, timeout: float = DEFAULT_TIMEOUT) -> str:
         return dump_yaml(client.target, python)
 
 
+def _offers_parameters(node: Node, name: str) -> bool:
+    """Whether the graph shows ``name``'s list_parameters service (a node may run without
+    parameter services)."""
+    namespace, _, base = name.rpartition('/')
+    try:
+        services = node.get_service_names_and_types_by_node(base, namespace or '/')
+    except Exception:  # the node left meanwhile: ask it, the answer will say so
+        return True
+    return any(s == f'{name}/{srv_name("list")}' for s, _ in services)
+
+
 def list_all_parameters(*, timeout: float = DEFAULT_TIMEOUT) -> dict[str, list[str] | None]:
-    """Every visible node's parameter names (``ros2 param list`` without a node); None for
-    a node that did not answer within ``timeout`` s (no parameter services, or gone)."""
+    """Every visible node's parameter names (``ros2 param list`` without a node): none for
+    a node without parameter services, None for one that did not answer within
+    ``timeout`` s (gone, or not spinning)."""
     from depth_nodes.tools.live.introspect import DISCOVERY_S, graph_node, settle, visible_nodes
 
-    out: dict[str, list[str] | None] = {}
     with graph_node('param_list') as (node, executor):
         settle(node, executor, DISCOVERY_S)
-        for name in visible_nodes(node):
-            client = ParameterClient(node, executor, name, timeout)
-            try:
-                client.wait(('list',))
-                out[name] = client.names()
-            except ConfigError:
+        # ask every node at once: one that never answers (a busy `play`) costs the
+        # timeout once, not once per node
+        clients = {name: node.create_client(ListParameters, f'{name}/{srv_name("list")}')
+                   for name in visible_nodes(node) if _offers_parameters(node, name)}
+        deadline = time.monotonic() + timeout
+        futures: dict[str, Any] = {}
+        while time.monotonic() < deadline:
+            for name, client in clients.items():
+                if name not in futures and client.service_is_ready():
+                    futures[name] = client.call_async(ListParameters.Request())
+            if len(futures) == len(clients) and all(f.done() for f in futures.values()):
+                break
+            executor.spin_once(timeout_sec=0.05)
+        out: dict[str, list[str] | None] = {name: [] for name in visible_nodes(node)
+                                            if name not in clients}
+        for name in clients:
+            future = futures.get(name)
+            if future is not None and future.done() and future.result() is not None:
+                out[name] = sorted(future.result().result.names)
+            else:
+                if future is not None:
+                    future.cancel()
                 out[name] = None
     return out
