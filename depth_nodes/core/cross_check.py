@@ -115,13 +115,17 @@ class CrossCheckParams:
     filled_confidence: float = setting(0.1, 'Confidence factor of filled pixels',
                                        low=0.0, high=1.0)
 
-    def arguments(self) -> dict[str, Any]:
-        """The keyword arguments of :func:`cross_check` (checked first).
+    def validate(self) -> CrossCheckParams:
+        """Check every field; returns self.
 
         Raises:
             ArgumentError: A field breaks its rule.
         """
-        check_settings(self, 'cross-check parameter')
+        return check_settings(self, 'cross-check parameter')
+
+    def arguments(self) -> dict[str, Any]:
+        """The keyword arguments of :func:`cross_check` (:func:`cross_check` checks what
+        it is given; :meth:`validate` checks the fields as a whole)."""
         max_diff = lr_threshold(self.disp12_max_diff)
         return {'disp12_max_diff': max_diff if max_diff > 0 else NO_CHECK,
                 'speckle_size': self.speckle_size, 'speckle_range': self.speckle_range,

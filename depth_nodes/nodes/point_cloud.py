@@ -106,13 +106,13 @@ PARAMETERS = [
 
 
 def _reprojection(values: Mapping[str, Any]) -> ReprojectParams:
-    return ReprojectParams(**{f.name: values[f.name]
-                              for f in fields(ReprojectParams)}).validate()
+    """The reprojection settings of a parameter snapshot (checked when they were set)."""
+    return ReprojectParams(**{f.name: values[f.name] for f in fields(ReprojectParams)})
 
 
 def _cross_check(values: Mapping[str, Any]) -> str | None:
     try:
-        _reprojection(values)
+        _reprojection(values).validate()
     except ArgumentError as exc:
         return str(exc)
     if not values['use_confidence']:

@@ -76,14 +76,15 @@ from depth_nodes.ros.sync import stamp_to_ns
 
 def _cross_check(values: Mapping[str, Any]) -> str | None:
     try:
-        _settings(values)
+        _settings(values).validate()
     except ArgumentError as exc:
         return str(exc)
     return None
 
 
 def _settings(values: Mapping[str, Any]) -> StructuredLightParams:
-    return StructuredLightParams(**{name: values[name] for name in SETTINGS}).validate()
+    """The decoder's settings of a parameter snapshot (checked when they were set)."""
+    return StructuredLightParams(**{name: values[name] for name in SETTINGS})
 
 
 #: The decoder's parameters, declared from StructuredLightParams' settings.

@@ -57,4 +57,4 @@ def test_cross_check_params_give_the_function_its_arguments() -> None:
     assert [lr_threshold(v) for v in (-1, 0, 2.5)] == [-1.0, 1.0, 2.5]
     with pytest.raises(ArgumentError, match='cross-check parameter median_size=4: must be '
                                             'one of 0, 3, 5'):
-        CrossCheckParams(median_size=4).arguments()
+        CrossCheckParams(median_size=4).validate()
