@@ -578,7 +578,7 @@ def build_parser() -> argparse.ArgumentParser:
             cmd.add_argument('value', help='YAML value: 5, 5.0, true, [1, 2], text')
         cmd.add_argument('--timeout', type=float, default=10.0, metavar='SECONDS',
                          help='wait up to this long for the node (default 10; a node missing '
-                         'from a graph whose node list has settled is reported sooner)')
+                         'from a graph whose node list has settled is reported after half of it)')
     par.set_defaults(func=_cmd_param)
 
     nod = sub.add_parser('node', help='the nodes of the running graph (like ros2 node)')

@@ -204,7 +204,11 @@ class ParameterClient:
             visible = visible_nodes(self._node)
             if visible != seen:
                 seen, stable_since = visible, now
-            settled = (now - start >= DISCOVERY_S and now - stable_since >= STABLE_S
+            # a missing node is reported before the timeout once the node list has held
+            # still without it, but not before half the timeout: a busy process (a graph
+            # at full load on few cores) can announce itself seconds late
+            settled = (now - start >= max(DISCOVERY_S, self._timeout / 2)
+                       and now - stable_since >= STABLE_S
                        and visible and self.target not in visible
                        and not unnamed_endpoints(self._node))
             if now >= deadline or settled:
