@@ -9,23 +9,19 @@ come from the environment, as for any ROS 2 tool.
 from __future__ import annotations
 
 import difflib
-import os
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any
 
-import rclpy
 import yaml
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
-from rclpy.context import Context
 from rclpy.exceptions import InvalidNamespaceException, InvalidNodeNameException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
-from rclpy.utilities import try_shutdown
 from rclpy.validate_namespace import validate_namespace
 from rclpy.validate_node_name import validate_node_name
 
@@ -255,22 +251,12 @@ def connect(node: str, verbs: tuple[str, ...], *,
     target = full_node_name(node)
     if not timeout > 0:
         raise ConfigError(f'--timeout must be positive, got {timeout:g}')
-    context = Context()
-    rclpy.init(args=[], context=context)
-    try:
-        local = Node(f'_depth_nodes_param_{os.getpid()}', context=context,
-                     start_parameter_services=False, enable_rosout=False)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(local)
-        try:
-            client = ParameterClient(local, executor, target, timeout)
-            client.wait(verbs)
-            yield client
-        finally:
-            executor.shutdown()
-            local.destroy_node()
-    finally:
-        try_shutdown(context=context)
+    from depth_nodes.tools.live.introspect import graph_node
+
+    with graph_node('param') as (local, executor):
+        client = ParameterClient(local, executor, target, timeout)
+        client.wait(verbs)
+        yield client
 
 
 def list_parameters(node: str, *, timeout: float = DEFAULT_TIMEOUT) -> list[str]:
