@@ -10,11 +10,22 @@ with ``paths * (max(C) + P2) < 65536`` the uint16 sums cannot overflow (the matc
 
 Layout: disparity innermost. Directions with a vertical component are swept row by row
 (here top to bottom; bottom to top in ``select.py``): each pixel of a row depends only on
-earlier rows, so a row is parallel across x. Each L row lives in a small ring buffer
-padded with a large sentinel at both disparity ends, so the inner loop over d has no
-branch. The upward and horizontal directions are fused with the disparity selection in
-``select.py``; with a :data:`SINGLE_PASS` path count that kernel runs the downward and
-horizontal directions in one top-down pass and this sweep is not used.
+earlier rows. The matcher sweeps bands of rows (``bands.py``): the downward paths run
+through the bands in order, top to bottom, and the upward ones either bottom to top (whole
+volumes) or afresh from a few rows below each band (memory-bounded bands, in
+``select.py``, fused with the horizontal directions and the disparity selection). Each L
+row lives in a small ring buffer padded with a large sentinel at both disparity ends, so
+the inner loop over d has no branch. With a :data:`SINGLE_PASS` path count there are no
+upward directions.
+
+ONE_THREAD_GUFUNC: the band kernels run on one thread each (the matcher runs several
+bands at once, ``bands.py``) but are compiled ``parallel=True`` around a ``prange`` of one
+iteration. numba then compiles the loop nest as a parallel-loop body, which LLVM optimises
+far better here: the downward sweep of a VGA frame with 128 disparities took 24 ms so
+against 75 ms as a plain ``njit`` function (same code, one thread, measured on this
+package's 2-core machine; the cause was not pinned down: not aliasing, error model or
+fast-math). Run from several threads at once, this needs a thread-safe numba threading
+layer (OpenMP or TBB, see ``matcher.py``), and each thread set to one numba thread.
 
 P2 may adapt to the image: P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / scale)), with the
 intensity step truncated to an integer (exact for camera images), looked up in a table.
@@ -141,18 +152,25 @@ def _ring(lb0: U16, lb1: U16, lb2: U16, index: int) -> U16:
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def sweep_down(cost: U8, image: NDArray[np.float32], dxs: NDArray[np.int64],
-               dys: NDArray[np.int64], p1: int, p2: int, p2_table: NDArray[np.int64],
-               lb0: U16, lb1: U16, lb2: U16, mbuf: U16, total: U16, chunks: int) -> None:
-    """Aggregate the downward directions ``(dxs, dys)`` over all rows, top to bottom.
+def sweep_down(cost: U8, image: NDArray[np.float32], y0: int, rows: int,
+               dxs: NDArray[np.int64], dys: NDArray[np.int64], p1: int, p2: int,
+               p2_table: NDArray[np.int64], lb0: U16, lb1: U16, lb2: U16, mbuf: U16,
+               partial: U16, upward: bool = False, accumulate: bool = False) -> None:
+    """Aggregate the downward directions ``(dxs, dys)`` over rows y0 .. y0 + rows - 1,
+    continuing the paths of the rows above (the ring buffers carry them from the call
+    for the band above), on one thread; with ``upward``, the mirrored directions from
+    the bottom row up, continuing the paths of the rows below.
 
-    The previous pixel of direction (dx, dy) is (x - dx, y - dy); the sum over the
-    directions is written into ``total``. The mirrored (upward) directions are run by
-    ``select.upward_horizontal_select``, which reuses these ring buffers.
+    The previous pixel of direction (dx, dy) is (x - dx, y - dy) (upward: (x + dx, y +
+    dy)); the sum over the directions is written into ``partial`` (added with
+    ``accumulate``). ``select.band_select`` can also run the upward directions itself,
+    from a few rows below its band.
 
     Args:
-        cost: (H, W, D) uint8 cost volume.
+        cost: (R, W, D) uint8 cost of rows y0 .. y0 + R - 1 (R >= rows).
         image: (H, W) float32 image for the adaptive P2.
+        y0: First row (0 starts every path afresh).
+        rows: Number of rows to sweep.
         dxs: Horizontal steps of the directions.
         dys: Vertical steps (1 or 2).
         p1: Penalty of a 1-disparity change.
@@ -160,41 +178,43 @@ def sweep_down(cost: U8, image: NDArray[np.float32], dxs: NDArray[np.int64],
         p2_table: Adaptive P2 by integer intensity step (:func:`p2_table`); empty for a
             constant P2.
         lb0, lb1, lb2: The ring of L rows, three separate (n_dirs, W, D + 2) uint16 arrays
-            (row i lives in ring i % 3) with SENTINEL at entries 0 and D + 1. Separate
-            arrays let LLVM vectorise the recurrence in place (reading one array, writing
-            another) without a scratch buffer and a copy.
+            (image row y lives in ring y % 3) with SENTINEL at entries 0 and D + 1.
+            Separate arrays let LLVM vectorise the recurrence in place (reading one array,
+            writing another) without a scratch buffer and a copy.
         mbuf: (n_dirs, 3, W) uint16 ring of min_d L.
-        total: (H, W, D) uint16 out: sum over these paths.
-        chunks: Pieces each row is split into for the threads (a few per thread).
+        partial: (rows, W, D) uint16 out: sum over these paths, row y0 + i in entry i.
+        upward: Sweep the mirrored directions, bottom up.
+        accumulate: Add the sum to ``partial`` instead of overwriting it.
     """
-    h, w = cost.shape[:2]
-    ndir = dxs.shape[0]
-    chunks = max(1, min(w, chunks))
-    for i in range(h):
-        y = i
-        ring = i % 3
-        cur_ring = _ring(lb0, lb1, lb2, ring)
-        for c in prange(chunks):
-            for x in range(c * w // chunks, (c + 1) * w // chunks):
-                out = total[y, x]
+    for _ in prange(1):  # one iteration: see ONE_THREAD_GUFUNC
+        h, w = image.shape
+        ndir = dxs.shape[0]
+        sign = -1 if upward else 1  # the previous pixel is (x, y) - sign (dx, dy)
+        for r in range(rows):
+            i = rows - 1 - r if upward else r
+            y = y0 + i
+            ring = y % 3
+            cur_ring = _ring(lb0, lb1, lb2, ring)
+            for x in range(w):
+                out = partial[i, x]
                 for j in range(ndir):
-                    step = dys[j]
-                    xp = x - dxs[j]
+                    yp = y - sign * dys[j]
+                    xp = x - sign * dxs[j]
                     cur = cur_ring[j, x]
-                    if i - step < 0 or xp < 0 or xp >= w:
-                        best = path_start(cost[y, x], cur)
+                    if yp < 0 or yp >= h or xp < 0 or xp >= w:
+                        best = path_start(cost[i, x], cur)
                     else:
-                        pring = (i - step) % 3
-                        p2e = table_p2(p2, p2_table, image[y, x], image[y - step, xp])
-                        best = path_step(cost[y, x], _ring(lb0, lb1, lb2, pring)[j, xp],
+                        pring = yp % 3
+                        p2e = table_p2(p2, p2_table, image[y, x], image[yp, xp])
+                        best = path_step(cost[i, x], _ring(lb0, lb1, lb2, pring)[j, xp],
                                          int(mbuf[j, pring, xp]), p1, p2e, cur)
                     mbuf[j, ring, x] = best
-                    store_path(cur, out, j > 0)
+                    store_path(cur, out, accumulate or j > 0)
 
 
 def new_line_buffers(n_dirs: int, width: int,
                      disparities: int) -> tuple[tuple[U16, U16, U16], U16]:
-    """Ring buffers for :func:`sweep_rows` (three L rows, sentinels in place; min_d L)."""
+    """Ring buffers for :func:`sweep_down` (three L rows, sentinels in place; min_d L)."""
     rings = tuple(np.full((n_dirs, width, disparities + 2), SENTINEL, np.uint16)
                   for _ in range(3))
     mbuf = np.zeros((n_dirs, 3, width), np.uint16)

@@ -20,6 +20,7 @@ compare it with.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -251,19 +252,21 @@ def _disparity_span(x: int, min_disparity: int, w: int, cell: U8) -> tuple[int, 
     return k_lo, k_hi
 
 
-@njit(parallel=True, cache=True, nogil=True)
-def _cost_kernel(census_l: NDArray[np.unsignedinteger[Any]],
-                 census_rm: NDArray[np.unsignedinteger[Any]], left: NDArray[np.float32],
-                 right_m: NDArray[np.float32], lo_l: NDArray[np.float32],
-                 hi_l: NDArray[np.float32], lo_rm: NDArray[np.float32],
-                 hi_rm: NDArray[np.float32], min_disparity: int, census_weight: int,
-                 intensity_weight: int, use_bt: bool, truncation: int, out: U8) -> None:
-    """The cost volume. Every right-image array (``*_rm``, ``right_m``) is mirrored
-    left-right: disparity k's right pixel xr0 - k is entry W - 1 - xr0 + k."""
-    h, w = out.shape[:2]
-    for y in prange(h):
+@njit(cache=True, nogil=True)
+def _cost_rows(census_l: NDArray[np.unsignedinteger[Any]],
+               census_rm: NDArray[np.unsignedinteger[Any]], left: NDArray[np.float32],
+               right_m: NDArray[np.float32], lo_l: NDArray[np.float32],
+               hi_l: NDArray[np.float32], lo_rm: NDArray[np.float32],
+               hi_rm: NDArray[np.float32], y0: int, min_disparity: int, census_weight: int,
+               intensity_weight: int, use_bt: bool, truncation: int, out: U8) -> None:
+    """Rows y0 .. y0 + len(out) - 1 of the cost volume, into ``out``. Every right-image
+    array (``*_rm``, ``right_m``) is mirrored left-right: disparity k's right pixel xr0 - k
+    is entry W - 1 - xr0 + k. One thread: the matcher runs bands of rows in parallel."""
+    rows, w = out.shape[:2]
+    for i in range(rows):
+        y = y0 + i
         for x in range(w):
-            cell = out[y, x]
+            cell = out[i, x]
             k_lo, k_hi = _disparity_span(x, min_disparity, w, cell)
             if k_lo > k_hi:
                 continue
@@ -330,25 +333,26 @@ def _pixel_costs_16(cl_lo: np.uint16, cl_hi: np.uint16, rm_lo: NDArray[np.uint16
         out[np.uint64(k)] = np.uint8(min(value, top))
 
 
-@njit(parallel=True, cache=True, nogil=True)
-def _cost_kernel_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
-                    left: NDArray[np.int16], right_m: NDArray[np.int16],
-                    lo_l: NDArray[np.int16], hi_l: NDArray[np.int16],
-                    lo_rm: NDArray[np.int16], hi_rm: NDArray[np.int16], min_disparity: int,
-                    census_weight: int, intensity_weight: int, use_bt: bool,
-                    truncation: int, out: U8) -> None:
-    """:func:`_cost_kernel` for uint8 images and a census of at most 32 bits (doubled
+@njit(cache=True, nogil=True)
+def _cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
+                  left: NDArray[np.int16], right_m: NDArray[np.int16],
+                  lo_l: NDArray[np.int16], hi_l: NDArray[np.int16],
+                  lo_rm: NDArray[np.int16], hi_rm: NDArray[np.int16], y0: int,
+                  min_disparity: int, census_weight: int, intensity_weight: int,
+                  use_bt: bool, truncation: int, out: U8) -> None:
+    """:func:`_cost_rows` for uint8 images and a census of at most 32 bits (doubled
     intensities, see :func:`_pixel_costs_16`)."""
-    h, w = out.shape[:2]
-    for y in prange(h):
+    rows, w = out.shape[:2]
+    rm_lo = np.empty(w, np.uint16)
+    rm_hi = np.empty(w, np.uint16)
+    for i in range(rows):
+        y = y0 + i
         # the right census row as two 16-bit halves (mirrored like every right array)
-        rm_lo = np.empty(w, np.uint16)
-        rm_hi = np.empty(w, np.uint16)
         for x in range(w):
             rm_lo[x] = np.uint16(census_rm[y, x] & np.uint32(0xFFFF))
             rm_hi[x] = np.uint16(census_rm[y, x] >> np.uint32(16))
         for x in range(w):
-            cell = out[y, x]
+            cell = out[i, x]
             k_lo, k_hi = _disparity_span(x, min_disparity, w, cell)
             if k_lo > k_hi:
                 continue
@@ -358,6 +362,63 @@ def _cost_kernel_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
                             rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
                             lo_rm[y], hi_rm[y], xm0, k_lo, k_hi, census_weight,
                             intensity_weight, use_bt, truncation, cell)
+
+
+@dataclass(frozen=True)
+class CostInputs:
+    """Everything the cost of any row needs, prepared once per frame (census images,
+    intensities, half-sample ranges): :meth:`rows` then fills any band of rows, so the
+    matcher never holds the whole (H, W, D) volume."""
+
+    arrays: tuple[NDArray[Any], ...]
+    sixteen_bit: bool
+    min_disparity: int
+    disparity_range: int
+    census_weight: int
+    intensity_weight: int
+    use_bt: bool
+    truncation: int
+
+    def rows(self, y0: int, out: U8) -> U8:
+        """Rows y0 .. y0 + len(out) - 1 of the cost volume, into ``out`` (one thread)."""
+        kernel: Any = _cost_rows_16 if self.sixteen_bit else _cost_rows
+        kernel(*self.arrays, y0, self.min_disparity, self.census_weight,
+               self.intensity_weight, self.use_bt, self.truncation, out)
+        return out
+
+
+def cost_inputs(left: NDArray[np.generic], right: NDArray[np.generic], *,
+                min_disparity: int, disparity_range: int,
+                census_window: tuple[int, int] = (9, 7), census_weight: int = 1,
+                intensity_weight: int = 0, intensity_cost: str = 'bt',
+                intensity_truncation: int = 30, match_brightness: bool = False,
+                census_buffers: tuple[Census, Census] | None = None) -> CostInputs:
+    """The per-frame inputs of :func:`cost_volume` (same arguments), for costs by rows."""
+    left, right = np.asarray(left), np.asarray(right)
+    h, w = left.shape
+    if census_buffers is None:
+        dtype = census_dtype(census_window)
+        census_buffers = (np.empty((h, w), dtype), np.empty((h, w), dtype))
+    cl, crm = census_buffers
+    if census_weight:
+        census_transform(left, census_window, cl)
+        census_transform(right, census_window, crm, mirrored=True)
+    if intensity_weight and match_brightness:
+        right = matched_brightness(left, right)
+    common = (int(min_disparity), int(disparity_range), int(census_weight),
+              int(intensity_weight), intensity_cost == 'bt', int(intensity_truncation))
+    if left.dtype == np.uint8 and right.dtype == np.uint8 and cl.dtype == np.uint32:
+        doubled = [np.empty((h, w), np.int16) for _ in range(6)]
+        l2, lo_l2, hi_l2, r2m, lo_rm2, hi_rm2 = doubled
+        _doubled_half_sample_range(np.ascontiguousarray(left), l2, lo_l2, hi_l2)
+        _doubled_half_sample_range(np.ascontiguousarray(right[:, ::-1]), r2m, lo_rm2, hi_rm2)
+        return CostInputs((cl, crm, l2, r2m, lo_l2, hi_l2, lo_rm2, hi_rm2), True, *common)
+    lf = np.ascontiguousarray(left, dtype=np.float32)
+    # the right image mirrored (the half-sample range commutes with the mirror)
+    rfm = np.ascontiguousarray(right[:, ::-1], dtype=np.float32)
+    lo_l, hi_l = _half_sample_range(lf)
+    lo_rm, hi_rm = _half_sample_range(rfm)
+    return CostInputs((cl, crm, lf, rfm, lo_l, hi_l, lo_rm, hi_rm), False, *common)
 
 
 def cost_volume(left: NDArray[np.generic], right: NDArray[np.generic], *,
@@ -394,36 +455,16 @@ def cost_volume(left: NDArray[np.generic], right: NDArray[np.generic], *,
     Returns:
         The (H, W, D) uint8 cost volume.
     """
-    left, right = np.asarray(left), np.asarray(right)
-    h, w = left.shape
+    inputs = cost_inputs(left, right, min_disparity=min_disparity,
+                         disparity_range=disparity_range, census_window=census_window,
+                         census_weight=census_weight, intensity_weight=intensity_weight,
+                         intensity_cost=intensity_cost,
+                         intensity_truncation=intensity_truncation,
+                         match_brightness=match_brightness, census_buffers=census_buffers)
+    h, w = np.shape(left)
     if out is None:
         out = np.empty((h, w, disparity_range), np.uint8)
-    if census_buffers is None:
-        dtype = census_dtype(census_window)
-        census_buffers = (np.empty((h, w), dtype), np.empty((h, w), dtype))
-    cl, crm = census_buffers
-    if census_weight:
-        census_transform(left, census_window, cl)
-        census_transform(right, census_window, crm, mirrored=True)
-    if intensity_weight and match_brightness:
-        right = matched_brightness(left, right)
-    if left.dtype == np.uint8 and right.dtype == np.uint8 and cl.dtype == np.uint32:
-        doubled = [np.empty((h, w), np.int16) for _ in range(6)]
-        l2, lo_l2, hi_l2, r2m, lo_rm2, hi_rm2 = doubled
-        _doubled_half_sample_range(np.ascontiguousarray(left), l2, lo_l2, hi_l2)
-        _doubled_half_sample_range(np.ascontiguousarray(right[:, ::-1]), r2m, lo_rm2, hi_rm2)
-        _cost_kernel_16(cl, crm, l2, r2m, lo_l2, hi_l2, lo_rm2, hi_rm2, min_disparity,
-                        census_weight, intensity_weight, intensity_cost == 'bt',
-                        intensity_truncation, out)
-        return out
-    lf = np.ascontiguousarray(left, dtype=np.float32)
-    # the right image mirrored (the half-sample range commutes with the mirror)
-    rfm = np.ascontiguousarray(right[:, ::-1], dtype=np.float32)
-    lo_l, hi_l = _half_sample_range(lf)
-    lo_rm, hi_rm = _half_sample_range(rfm)
-    _cost_kernel(cl, crm, lf, rfm, lo_l, hi_l, lo_rm, hi_rm, min_disparity, census_weight,
-                 intensity_weight, intensity_cost == 'bt', intensity_truncation, out)
-    return out
+    return inputs.rows(0, out)
 
 
 def cost_volume_reference(left: NDArray[np.generic], right: NDArray[np.generic], *,
@@ -475,23 +516,27 @@ def cost_volume_reference(left: NDArray[np.generic], right: NDArray[np.generic],
 
 
 # ---------------------------------------------------------------- out-of-image cells
-@njit(parallel=True, cache=True, nogil=True)
-def _mean_best_cost(cost: U8, x_lo: int, x_hi: int, row_step: int) -> float:
-    h = cost.shape[0]
-    rows = (h + row_step - 1) // row_step
-    sums = np.zeros(rows)
-    for i in prange(rows):
-        y = i * row_step
-        total = 0.0
+@njit(cache=True, nogil=True)
+def _best_cost_sum(cost: U8, x_lo: int, x_hi: int, row_step: int) -> float:
+    """Sum over every ``row_step``-th row and the columns [x_lo, x_hi) of min_d cost."""
+    total = 0.0
+    for y in range(0, cost.shape[0], row_step):
+        row = 0.0
         for x in range(x_lo, x_hi):
             best = np.uint8(255)
             cell = cost[y, x]
             for k in range(cell.shape[0]):
                 best = min(best, cell[k])
-            total += best
-        sums[i] = total
-    mean: float = sums.sum() / max(1, rows * (x_hi - x_lo))
-    return mean
+            row += best
+        total += row
+    return total
+
+
+def _full_range_columns(w: int, n: int, min_disparity: int) -> tuple[int, int]:
+    """The columns where every disparity stays inside the image (all when there are none)."""
+    x_lo = max(0, min_disparity + n - 1)
+    x_hi = min(w, w + min_disparity)
+    return (x_lo, x_hi) if x_lo < x_hi else (0, w)
 
 
 def mean_best_cost(cost: U8, min_disparity: int, *, row_step: int = 4) -> float:
@@ -499,22 +544,40 @@ def mean_best_cost(cost: U8, min_disparity: int, *, row_step: int = 4) -> float:
     this frame (its noise and texture), from every ``row_step``-th row and the columns
     where every disparity stays inside the image. Falls back to every column when no
     column has the full range (the mean then includes out-of-image cells)."""
-    _, w, n = cost.shape
-    x_lo = max(0, min_disparity + n - 1)
-    x_hi = min(w, w + min_disparity)
-    if x_lo >= x_hi:
-        x_lo, x_hi = 0, w
-    mean = float(_mean_best_cost(cost, x_lo, x_hi, max(1, row_step)))
-    return mean
+    h, w, n = cost.shape
+    x_lo, x_hi = _full_range_columns(w, n, min_disparity)
+    step = max(1, row_step)
+    rows = (h + step - 1) // step
+    total = float(_best_cost_sum(cost, x_lo, x_hi, step))
+    return float(total / max(1, rows * (x_hi - x_lo)))
 
 
-@njit(parallel=True, cache=True, nogil=True)
+def sampled_best_cost_sum(inputs: CostInputs, ys: range, buffer: U8) -> float:
+    """:func:`mean_best_cost`'s sum over the rows ``ys`` (before dividing), their costs
+    computed ``len(buffer)`` rows at a time into ``buffer``: the whole volume is never
+    needed. Exact (integer sums in float64), so the mean equals mean_best_cost's."""
+    w, n = buffer.shape[1:]
+    x_lo, x_hi = _full_range_columns(w, n, inputs.min_disparity)
+    total = 0.0
+    for y in ys:
+        inputs.rows(y, buffer[:1])
+        total += float(_best_cost_sum(buffer[:1], x_lo, x_hi, 1))
+    return total
+
+
+def mean_best_count(h: int, w: int, n: int, min_disparity: int, row_step: int) -> int:
+    """How many pixels :func:`mean_best_cost` averages over."""
+    x_lo, x_hi = _full_range_columns(w, n, min_disparity)
+    return max(1, (h + row_step - 1) // row_step * (x_hi - x_lo))
+
+
+@njit(cache=True, nogil=True)
 def _fill_outside(cost: U8, min_disparity: int, value: np.uint8) -> None:
     h, w, n = cost.shape
     # only the columns near the borders have cells outside: [0, lo) and [hi, w)
     lo = min(w, max(0, min_disparity + n - 1))
     hi = max(lo, min(w, w + min_disparity))
-    for y in prange(h):
+    for y in range(h):
         for i in range(lo + w - hi):
             x = i if i < lo else hi + i - lo
             xr0 = x - min_disparity
@@ -529,7 +592,7 @@ def _fill_outside(cost: U8, min_disparity: int, value: np.uint8) -> None:
 
 def fill_outside(cost: U8, min_disparity: int, value: int) -> None:
     """Set every cell whose right pixel ``x - min_disparity - k`` lies outside the image
-    to ``value`` (0..255), in place."""
+    to ``value`` (0..255), in place (any band of rows of the volume)."""
     if not 0 <= value <= 255:
         raise ArgumentError(f'value must be in 0..255, got {value}')
     _fill_outside(cost, int(min_disparity), np.uint8(value))

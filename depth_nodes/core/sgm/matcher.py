@@ -9,6 +9,7 @@ Typical use::
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -26,21 +27,35 @@ from depth_nodes.core.sgm.aggregate import (
     p2_table,
     sweep_down,
 )
+from depth_nodes.core.sgm.bands import (
+    CELL_BYTES,
+    MIN_BANDS,
+    Band,
+    Task,
+    band_layout,
+    band_rows,
+    run_tasks,
+)
 from depth_nodes.core.sgm.check import check_disparity
 from depth_nodes.core.sgm.cost import (
     OUT_OF_RANGE_COST,
+    CostInputs,
     census_dtype,
-    cost_volume,
+    cost_inputs,
     fill_outside,
-    mean_best_cost,
+    mean_best_count,
+    sampled_best_cost_sum,
 )
-from depth_nodes.core.sgm.select import SUBPIXEL_MODES, upward_horizontal_select
+from depth_nodes.core.sgm.select import SUBPIXEL_MODES, band_select
 from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]
 
-#: Row pieces per thread in the parallel sweeps (a few, so the threads finish together).
-CHUNKS_PER_THREAD = 4
+#: Bands in flight the automatic band height is sized for (a downward sweep and two
+#: selections: two threads never wait for a free band). Each thread beyond two adds one.
+SIZED_SLOTS = 3
+#: Row step of the frame statistic behind ``border_cost`` (:func:`cost.mean_best_cost`).
+BORDER_ROW_STEP = 4
 #: How a settings error names the matcher.
 LABEL = 'SGM parameter'
 #: The largest P2 (with 4 paths; fewer with more: the 16-bit sum of the paths).
@@ -107,6 +122,17 @@ class SgmParams:
     speckle_size: int = setting(100, SPECKLE_SIZE)
     speckle_range: float = setting(2.0, 'Largest disparity step in px within one speckle '
                                    'region', low=0.0, high=64.0)
+    band_rows: int = setting(0, 'rows per band of the banded matcher (0: automatic, an '
+                             'eighth of the image at most and within memory_mb; the image '
+                             'height or more: one band, the exact unbanded SGM)',
+                             low=0, high=100000)
+    band_overlap: int = setting(64, 'rows below each band from which its upward paths '
+                                'start (the only approximation of the banded matcher)',
+                                low=0, high=100000)
+    memory_mb: float = setting(160.0, 'memory for the cost volumes, MB: whole-frame volumes '
+                               '(exact) when they fit, else bands in flight sized to it '
+                               '(about constant whatever the disparity range; 0: always '
+                               'bands)', low=0.0, high=1e6)
 
     def _bad(self, name: str, why: str) -> ArgumentError:
         return ArgumentError(f'{LABEL} {name}={getattr(self, name)!r}: {why}')
@@ -176,6 +202,7 @@ class SgmMatcher:
         self._table_key: tuple[Any, ...] = ()
         self._table = p2_table(0, 0, 0.0)
         self._buf: dict[str, Any] = {}
+        self._total = np.empty((0, 0, 0), np.uint16)
         self._kept_total = False
         self.allocations = 0
         #: The out-of-image cost the last match used (0: none, extrapolation off).
@@ -185,27 +212,59 @@ class SgmMatcher:
         """Use ``params`` from the next frame on (validated now)."""
         self.params = params.validate()
 
-    def _buffers(self, h: int, w: int) -> dict[str, Any]:
+    def whole_volumes(self, h: int, w: int) -> bool:
+        """Whether an (h, w) frame is matched with whole-frame volumes (exact; the
+        downward and upward paths as two chains of bands running at once) rather than
+        bands in flight whose upward paths start ``band_overlap`` rows below them (memory
+        bounded): when the volumes (3 bytes a cell) fit ``memory_mb``, or the overlap
+        reaches the image bottom anyway. Single-pass path counts need no whole volume."""
+        p = self.params
+        if p.paths in SINGLE_PASS:
+            return False
+        return p.band_overlap >= h or CELL_BYTES * h * w * p.disparity_range <= p.memory_mb * 1e6
+
+    def bands(self, h: int, w: int) -> list[Band]:
+        """The bands of an (h, w) frame with the current settings (independent of the
+        thread count, so every thread count gives the same result)."""
+        p = self.params
+        if self.whole_volumes(h, w):
+            return band_layout(h, min(h, p.band_rows or -(-h // MIN_BANDS)), 0)
+        overlap = 0 if p.paths in SINGLE_PASS else p.band_overlap
+        rows = p.band_rows or band_rows(h, w, p.disparity_range, memory_mb=p.memory_mb,
+                                        slots=SIZED_SLOTS, overlap=overlap)
+        return band_layout(h, min(rows, h), overlap)
+
+    def _buffers(self, h: int, w: int, threads: int) -> dict[str, Any]:
         p = self.params
         n = p.disparity_range
         dirs = VERTICAL_DIRECTIONS[p.paths]
-        threads = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
         census = census_dtype((p.census_height, p.census_width))
-        shape = (h, w, n, p.paths, threads, census)
+        bands = self.bands(h, w)
+        whole = self.whole_volumes(h, w)
+        slots = 1 if whole else min(len(bands), max(SIZED_SLOTS, threads + 1))
+        rows = h if whole else max(b.rows for b in bands)
+        reach = h if whole else max(b.reach for b in bands)
+        shape = (h, w, n, p.paths, threads, census, tuple(bands), whole, slots)
         if shape != self._shape:
-            rings, mbuf = new_line_buffers(len(dirs), w, n)
+            def rings() -> tuple[tuple[Any, Any, Any], Any]:
+                return new_line_buffers(len(dirs), w, n)
+
             self._buf = {
                 'census': (np.empty((h, w), census), np.empty((h, w), census)),
-                'cost': np.empty((h, w, n), np.uint8),
-                # the sum of the downward paths (none in one pass; see match's keep_total)
-                'partial': np.empty((0, 0, 0) if p.paths in SINGLE_PASS else (h, w, n),
-                                    np.uint16),
-                'rings': rings, 'mbuf': mbuf,
+                'bands': bands,
+                'whole': whole,
+                'cost': [np.empty((reach, w, n), np.uint8) for _ in range(slots)],
+                'partial': [np.empty((rows, w, n), np.uint16) for _ in range(slots)],
+                'down': rings(),
+                'up': rings() if whole else None,
+                'workers': [{'rings': rings(), 'total': np.empty((w, n), np.uint16),
+                             'ltr': np.empty((2, w, n), np.uint16),
+                             'rtl': np.empty((2, w, n), np.uint16),
+                             'keys': np.empty(w, np.uint32),
+                             'sample': np.empty((1, w, n), np.uint8)}
+                            for _ in range(threads)],
                 'dxs': np.array([d[0] for d in dirs], np.int64),
                 'dys': np.array([d[1] for d in dirs], np.int64),
-                'rows': (np.empty((w, n), np.uint16), np.empty((2, w, n), np.uint16),
-                         np.empty((2, w, n), np.uint16)),
-                'keys': np.empty((CHUNKS_PER_THREAD * threads, w), np.uint32),
                 'disparity': np.empty((h, w), np.float32),
                 'disparity_right': np.empty((h, w), np.float32),
                 'ratio': np.empty((h, w), np.float32),
@@ -218,9 +277,22 @@ class SgmMatcher:
             self._table_key = table_key
         return self._buf
 
+    @property
+    def workspace_bytes(self) -> int:
+        """Bytes of the buffers the matcher keeps between frames."""
+        def size(value: Any) -> int:
+            if isinstance(value, np.ndarray):
+                return value.nbytes
+            if isinstance(value, (list, tuple)):
+                return sum(size(v) for v in value)
+            if isinstance(value, dict):
+                return sum(size(v) for v in value.values())
+            return 0
+        return size(self._buf) + size(self._total)
+
     def match(self, left: NDArray[Any], right: NDArray[Any], *,
               keep_total: bool = False) -> SgmResult:
-        """Match a rectified grey pair.
+        """Match a rectified grey pair, on ``numba.get_num_threads()`` threads.
 
         Args:
             left: (H, W) rectified left image (uint8, uint16 or float).
@@ -238,37 +310,21 @@ class SgmMatcher:
                                 'size')
         h, w = left.shape
         p = self.params.check_width(w)  # the rest was checked when the params were set
-        b = self._buffers(h, w)
-        left_f = np.ascontiguousarray(left, dtype=np.float32)
-        cost = cost_volume(
+        threads = max(1, numba.get_num_threads())
+        b = self._buffers(h, w, threads)
+        inputs = cost_inputs(
             left, right, min_disparity=p.min_disparity, disparity_range=p.disparity_range,
             census_window=(p.census_height, p.census_width), census_weight=p.census_weight,
             intensity_weight=p.intensity_weight, intensity_cost=p.intensity_cost,
             intensity_truncation=p.intensity_truncation, match_brightness=p.match_brightness,
-            out=b['cost'], census_buffers=b['census'])
-        extrapolate = p.border_cost > 0
-        if extrapolate:
-            self.border_cost = min(254, max(1, round(
-                p.border_cost * mean_best_cost(cost, p.min_disparity))))
-            fill_outside(cost, p.min_disparity, self.border_cost)
-        else:
-            self.border_cost = 0
-        lb0, lb1, lb2 = b['rings']
-        chunks = CHUNKS_PER_THREAD * numba.get_num_threads()
-        single_pass = p.paths in SINGLE_PASS
-        if keep_total and b['partial'].shape != cost.shape:  # tests: room for the total
-            b['partial'] = np.empty(cost.shape, np.uint16)
+            census_buffers=b['census'])
+        if keep_total and self._total.shape != (h, w, p.disparity_range):
+            self._total = np.empty((h, w, p.disparity_range), np.uint16)
         self._kept_total = keep_total
-        if not single_pass:
-            sweep_down(cost, left_f, b['dxs'], b['dys'], int(p.P1), int(p.P2), self._table,
-                       lb0, lb1, lb2, b['mbuf'], b['partial'], chunks)
-        total, left_to_right, right_to_left = b['rows']
-        upward_horizontal_select(
-            cost, left_f, b['partial'], b['dxs'], b['dys'], int(p.P1), int(p.P2),
-            self._table, lb0, lb1, lb2, b['mbuf'], int(p.min_disparity),
-            float(p.uniqueness_ratio), SUBPIXEL_MODES[p.subpixel], total, left_to_right,
-            right_to_left, b['keys'], b['disparity'], b['disparity_right'], b['ratio'],
-            keep_total, chunks, single_pass, extrapolate)
+        frame = _Frame(self, p, b, inputs, np.ascontiguousarray(left, dtype=np.float32),
+                       keep_total)
+        run_tasks(frame.tasks(threads), threads)
+        self.border_cost = frame.border_cost
         if p.median_filter:
             _median3(b['disparity'], p.min_disparity)
         check_disparity(b['disparity'], b['disparity_right'], max_diff=p.disp12_max_diff,
@@ -290,7 +346,7 @@ class SgmMatcher:
         if not self._kept_total:
             raise RuntimeError('the last match kept no total: call match(..., '
                                'keep_total=True)')
-        return self._buf['partial']  # type: ignore[no-any-return]
+        return self._total
 
 
 def _median3(disparity: F32, min_disparity: int) -> None:
@@ -311,3 +367,139 @@ def sgm_match(left: NDArray[Any], right: NDArray[Any], params: SgmParams | None 
     result = SgmMatcher(p).match(left, right)
     return SgmResult(result.disparity.copy(), result.disparity_right.copy(),
                      result.cost_ratio.copy())
+
+
+class _Frame:
+    """One match as tasks for :func:`bands.run_tasks`: the border statistic (two halves
+    of its sampled rows), then per band a downward sweep (a chain: each continues the
+    paths of the band above) and a selection (any order, once its band's sweep is done)."""
+
+    def __init__(self, matcher: SgmMatcher, params: SgmParams, buffers: dict[str, Any],
+                 inputs: CostInputs, image: F32, keep_total: bool) -> None:
+        self.p = params
+        self.buf = buffers
+        self.inputs = inputs
+        self.image = image
+        self.table = matcher._table
+        self.total = matcher._total
+        self.keep_total = keep_total
+        self.extrapolate = params.border_cost > 0
+        self.border_cost = 0
+        self.samples: list[float] = []
+        self.h, self.w = image.shape
+        self.lock = threading.Lock()
+        bands = len(buffers['bands'])
+        self.band_locks = [threading.Lock() for _ in range(bands)]
+        self.swept = [False] * bands
+
+    def tasks(self, threads: int) -> list[Task]:
+        """The frame's tasks, dependencies first."""
+        tasks: list[Task] = []
+        ys = range(0, self.h, BORDER_ROW_STEP)
+        if self.extrapolate:
+            self.samples = [0.0, 0.0]
+            half = (len(ys) + 1) // 2
+            for part, rows in enumerate((ys[:half], ys[half:])):
+                tasks.append(Task(self._sample(part, rows), priority=0))
+        samples = [*range(len(tasks))]
+        bands = len(self.buf['bands'])
+        if self.buf['whole']:
+            # costs from both ends inwards, the two chains meeting in the middle
+            cost = [len(tasks) + k for k in range(bands)]
+            tasks += [Task(self._cost(k), samples, 2 * min(k, bands - 1 - k))
+                      for k in range(bands)]
+            down = [len(tasks) + k for k in range(bands)]
+            tasks += [Task(self._sweep(k, upward=False), [cost[k], *down[k - 1:k]], 2 * k + 1)
+                      for k in range(bands)]
+            up = [len(tasks) + bands - 1 - k for k in range(bands)]  # added bottom first
+            tasks += [Task(self._sweep(k, upward=True), [cost[k], *up[k + 1:k + 2]],
+                           2 * (bands - 1 - k) + 1) for k in reversed(range(bands))]
+            tasks += [Task(self._select(k), [down[k], up[k]], 2 * bands + k)
+                      for k in range(bands)]
+            return tasks
+        first_band = len(tasks)
+        slots = len(self.buf['cost'])
+        for k in range(bands):
+            down_k = first_band + 2 * k
+            after = samples if k == 0 else [down_k - 2]
+            if k >= slots:
+                after.append(down_k - 2 * slots + 1)  # the selection that last used the slot
+            tasks.append(Task(self._down(k), after, priority=1))
+            tasks.append(Task(self._select(k), [down_k], priority=2))
+        return tasks
+
+    def _border(self) -> None:
+        """Set :attr:`border_cost` from the sampled rows (once both halves are in)."""
+        p = self.p
+        count = mean_best_count(self.h, self.w, p.disparity_range, p.min_disparity,
+                                BORDER_ROW_STEP)
+        self.border_cost = min(254, max(1, round(p.border_cost * sum(self.samples) / count)))
+
+    def _cost(self, k: int) -> Any:
+        """Whole volumes: the cost of band k (a slice of the frame's volume)."""
+        def run(worker: int) -> None:
+            band = self.buf['bands'][k]
+            with self.lock:
+                if self.extrapolate and not self.border_cost:
+                    self._border()
+            cost = self.inputs.rows(band.y0, self.buf['cost'][0][band.y0:band.y0 + band.rows])
+            if self.extrapolate:
+                fill_outside(cost, self.p.min_disparity, self.border_cost)
+        return run
+
+    def _sweep(self, k: int, *, upward: bool) -> Any:
+        """Whole volumes: one chain's paths through band k, into the frame's partial sum
+        (the chain that comes second adds to the first one's; never both at once)."""
+        def run(worker: int) -> None:
+            p, b = self.p, self.buf
+            band = b['bands'][k]
+            rows = slice(band.y0, band.y0 + band.rows)
+            (lb0, lb1, lb2), mbuf = b['up' if upward else 'down']
+            with self.band_locks[k]:
+                sweep_down(b['cost'][0][rows], self.image, band.y0, band.rows, b['dxs'],
+                           b['dys'], int(p.P1), int(p.P2), self.table, lb0, lb1, lb2, mbuf,
+                           b['partial'][0][rows], upward, self.swept[k])
+                self.swept[k] = True
+        return run
+
+    def _sample(self, part: int, ys: range) -> Any:
+        def run(worker: int) -> None:
+            self.samples[part] = sampled_best_cost_sum(self.inputs, ys,
+                                                       self.buf['workers'][worker]['sample'])
+        return run
+
+    def _down(self, k: int) -> Any:
+        def run(worker: int) -> None:
+            p, b = self.p, self.buf
+            band = b['bands'][k]
+            slot = k % len(b['cost'])
+            if k == 0 and self.extrapolate:
+                self._border()
+            cost = self.inputs.rows(band.y0, b['cost'][slot][:band.reach])
+            if self.extrapolate:
+                fill_outside(cost, p.min_disparity, self.border_cost)
+            (lb0, lb1, lb2), mbuf = b['down']
+            sweep_down(cost, self.image, band.y0, band.rows, b['dxs'], b['dys'], int(p.P1),
+                       int(p.P2), self.table, lb0, lb1, lb2, mbuf, b['partial'][slot])
+        return run
+
+    def _select(self, k: int) -> Any:
+        def run(worker: int) -> None:
+            p, b = self.p, self.buf
+            band = b['bands'][k]
+            if b['whole']:  # both vertical sums are in the partial: horizontals and select
+                rows = slice(band.y0, band.y0 + band.rows)
+                cost, partial, upward = b['cost'][0][rows], b['partial'][0][rows], False
+            else:
+                slot = k % len(b['cost'])
+                cost, partial = b['cost'][slot][:band.reach], b['partial'][slot]
+                upward = p.paths not in SINGLE_PASS
+            scratch = b['workers'][worker]
+            (lb0, lb1, lb2), mbuf = scratch['rings']
+            band_select(cost, self.image, partial, band.y0, band.rows, b['dxs'], b['dys'],
+                        int(p.P1), int(p.P2), self.table, lb0, lb1, lb2, mbuf,
+                        int(p.min_disparity), float(p.uniqueness_ratio),
+                        SUBPIXEL_MODES[p.subpixel], scratch['total'], scratch['ltr'],
+                        scratch['rtl'], scratch['keys'], b['disparity'], b['disparity_right'],
+                        b['ratio'], self.total, self.keep_total, upward, self.extrapolate)
+        return run

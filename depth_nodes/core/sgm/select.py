@@ -1,7 +1,7 @@
 """The upward and horizontal SGM paths fused with disparity selection, row by row.
 
-For the single-pass path counts (5: ``aggregate.SINGLE_PASS``) the same kernel runs the
-downward and horizontal paths instead, top to bottom, and no downward sum is stored.
+For the single-pass path counts (5: ``aggregate.SINGLE_PASS``) there are no upward paths:
+the kernel adds the horizontal paths to the downward sum and selects.
 
 While a row's total is still in cache it is turned into: the left disparity
 (winner-take-all, sub-pixel, uniqueness), the right-view disparity (the minimum along the
@@ -158,9 +158,9 @@ def _right_candidates(column: U16, xm0: int, k_lo: int, k_hi: int,
 
 @njit(cache=True, nogil=True, inline='always')
 def _horizontal_pair(cost: U8, image: F32, p1: int, p2: int, p2_table: NDArray[np.int64],
-                     y_a: int, y_b: int, forward: bool, dst: U16) -> None:
+                     y_a: int, y_b: int, y0: int, forward: bool, dst: U16) -> None:
     """One horizontal path (left to right when ``forward``) along rows ``y_a`` and ``y_b``
-    at once, into dst[0] and dst[1].
+    of ``cost`` at once (image rows y0 + y_a and y0 + y_b), into dst[0] and dst[1].
 
     Along a row every step waits for the previous step's minimum over d; two independent
     rows interleaved give the core work to do while it waits (about 20% faster than one
@@ -179,10 +179,11 @@ def _horizontal_pair(cost: U8, image: F32, p1: int, p2: int, p2_table: NDArray[n
             best_b = path_start(cost[y_b, x], cur_b)
         else:
             xn = x - 1 if forward else x + 1
+            ia, ib = y0 + y_a, y0 + y_b
             best_a = path_step(cost[y_a, x], prev_a, best_a, p1,
-                               table_p2(p2, p2_table, image[y_a, x], image[y_a, xn]), cur_a)
+                               table_p2(p2, p2_table, image[ia, x], image[ia, xn]), cur_a)
             best_b = path_step(cost[y_b, x], prev_b, best_b, p1,
-                               table_p2(p2, p2_table, image[y_b, x], image[y_b, xn]), cur_b)
+                               table_p2(p2, p2_table, image[ib, x], image[ib, xn]), cur_b)
         row_a = dst[0, x]
         row_b = dst[1, x]
         for d in range(n):
@@ -192,93 +193,95 @@ def _horizontal_pair(cost: U8, image: F32, p1: int, p2: int, p2_table: NDArray[n
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np.int64],
-                             dys: NDArray[np.int64], p1: int, p2: int,
-                             p2_table: NDArray[np.int64], lb0: U16, lb1: U16, lb2: U16,
-                             mbuf: U16, min_disparity: int, uniqueness: float, subpixel: int,
-                             total: U16, left_to_right: U16, right_to_left: U16,
-                             keys: NDArray[np.uint32], disparity: F32, disparity_right: F32,
-                             ratio: F32, store_total: bool, chunks: int,
-                             single_pass: bool, extrapolate: bool) -> None:
-    """The rest of SGM, one row at a time from the bottom up, without a second volume pass.
+def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
+                dxs: NDArray[np.int64], dys: NDArray[np.int64], p1: int, p2: int,
+                p2_table: NDArray[np.int64], lb0: U16, lb1: U16, lb2: U16, mbuf: U16,
+                min_disparity: int, uniqueness: float, subpixel: int, total: U16,
+                left_to_right: U16, right_to_left: U16, keys: NDArray[np.uint32],
+                disparity: F32, disparity_right: F32, ratio: F32, total_out: U16,
+                store_total: bool, upward: bool, extrapolate: bool) -> None:
+    """The rest of SGM for one band of rows, bottom up, on one thread.
 
     For each row: (1) the upward paths (the downward ones mirrored) are added to the
-    downward sum ``partial`` in a row buffer, in parallel across x; (2) the two horizontal
-    paths run one per thread; (3) the total is formed and the left disparity selected,
-    while each chunk of x offers its totals to the right-view pixels; (4) the right view
-    is merged and refined. The full volume is thus read once here and never rewritten.
+    downward sum ``partial`` in a row buffer; (2) the two horizontal paths (of this row
+    and the next, interleaved); (3) the total is formed and the left disparity selected,
+    while the totals are offered to the right-view pixels; (4) the right view is refined.
+    The band's volume is read once here and never rewritten.
 
-    With ``single_pass`` the rows go from the top down instead, the directions ``(dxs,
-    dys)`` are used as they are (not mirrored) and there is no ``partial``: the whole
-    SGM of :data:`~depth_nodes.core.sgm.aggregate.SINGLE_PASS` path counts in one pass.
+    The upward paths start at the last row of ``cost``: with R > ``rows`` the R - rows
+    rows below the band are swept first (their paths only), so that the paths reaching
+    the band carry that much context (exact when the band reaches the image bottom).
 
     Args:
-        cost: (H, W, D) uint8 cost volume.
+        cost: (R, W, D) uint8 cost of rows y0 .. y0 + R - 1.
         image: (H, W) float32 left image (adaptive P2).
-        partial: (H, W, D) uint16 sum of the downward paths (``aggregate.sweep_down``);
-            overwritten with the full sum when ``store_total`` (tests). Not read with
-            ``single_pass`` (any shape unless ``store_total``).
-        dxs, dys: The downward directions, as given to ``sweep_down``.
+        partial: (rows, W, D) uint16 sum of the downward paths (``aggregate.sweep_down``).
+        y0: The band's first image row.
+        rows: The band's number of rows.
+        dxs, dys: The downward directions, as given to ``sweep_down`` (mirrored here).
         p1, p2, p2_table: Penalties, as in ``aggregate.sweep_down``.
-        lb0, lb1, lb2, mbuf: Ring buffers, as in ``aggregate.sweep_down``.
+        lb0, lb1, lb2, mbuf: Ring buffers, as in ``aggregate.sweep_down`` (this call's own).
         min_disparity: Disparity of index 0.
         uniqueness: OpenCV-style uniqueness ratio in percent (0 disables).
         subpixel: 0 none, 1 parabola, 2 equiangular.
         total: (W, D) uint16 row scratch.
         left_to_right, right_to_left: (2, W, D) uint16 scratch: the horizontal paths of
             two rows.
-        keys: (chunks, W) uint32 scratch for the right view (mirrored: W - 1 - xr).
+        keys: (W,) uint32 scratch for the right view (mirrored: W - 1 - xr).
         disparity: (H, W) float32 out: left disparity, NaN where invalid.
         disparity_right: (H, W) float32 out: right-view disparity, NaN where invalid.
         ratio: (H, W) float32 out: best / second-best aggregated cost of the left winner.
-        store_total: Write the full sum back into ``partial``.
-        chunks: Pieces each row is split into for the threads.
-        single_pass: Top down, the directions unmirrored, no ``partial`` (see above).
+        total_out: (H, W, D) uint16 out when ``store_total``: the full sum (tests).
+        store_total: Write the full sum into ``total_out``.
+        upward: Run the upward directions (False for the
+            :data:`~depth_nodes.core.sgm.aggregate.SINGLE_PASS` path counts).
         extrapolate: Select the left disparity over every disparity, also those whose
             right pixel is outside the image (their cells then hold a neutral cost, see
             ``cost.fill_outside``): the left border strip takes the disparity its
             neighbours' paths carry in. Otherwise only in-image disparities are candidates.
             The right view always uses in-image cells only.
     """
-    h, w, n = cost.shape
-    ndir = dxs.shape[0]
-    chunks = max(1, min(w, chunks, keys.shape[0]))
-    back = -1 if single_pass else 1  # the previous pixel of (dx, dy) is (x, y) + back (dx, dy)
-    for i in range(h):
-        y = i if single_pass else h - 1 - i
-        ring = i % 3
-        cur_ring = _ring(lb0, lb1, lb2, ring)
-        for c in prange(chunks):  # (1) upward paths + downward sum (one pass: downward)
-            for x in range(c * w // chunks, (c + 1) * w // chunks):
+    for _ in prange(1):  # one iteration: see ONE_THREAD_GUFUNC
+        r_all, w, n = cost.shape
+        ndir = dxs.shape[0] if upward else 0
+        for i in range(r_all if upward else rows):
+            b = (r_all if upward else rows) - 1 - i  # band-relative row, bottom up
+            y = y0 + b
+            ring = i % 3
+            cur_ring = _ring(lb0, lb1, lb2, ring)
+            in_band = b < rows
+            for x in range(w):  # (1) upward paths + downward sum
                 out = total[x]
-                if not single_pass:
-                    part = partial[y, x]
+                if in_band:
+                    part = partial[b, x]
                     for d in range(n):
                         out[d] = part[d]
                 for j in range(ndir):
                     step = dys[j]
-                    xp = x + back * dxs[j]
+                    xp = x + dxs[j]
                     cur = cur_ring[j, x]
                     if i - step < 0 or xp < 0 or xp >= w:
-                        best = path_start(cost[y, x], cur)
+                        best = path_start(cost[b, x], cur)
                     else:
                         pring = (i - step) % 3
-                        p2e = table_p2(p2, p2_table, image[y, x], image[y + back * step, xp])
-                        best = path_step(cost[y, x], _ring(lb0, lb1, lb2, pring)[j, xp],
+                        p2e = table_p2(p2, p2_table, image[y, x], image[y + step, xp])
+                        best = path_step(cost[b, x], _ring(lb0, lb1, lb2, pring)[j, xp],
                                          int(mbuf[j, pring, xp]), p1, p2e, cur)
                     mbuf[j, ring, x] = best
-                    store_path(cur, out, not single_pass or j > 0)
-        if i % 2 == 0:  # (2) horizontal paths of this row and the next, one direction each
-            y_next = min(max(y - back, 0), h - 1)
-            for task in prange(2):
-                _horizontal_pair(cost, image, p1, p2, p2_table, y, y_next, task == 0,
-                                 left_to_right if task == 0 else right_to_left)
-        pair = i % 2
-        for c in prange(chunks):  # (3) totals, left selection, right-view candidates
-            ck = keys[c]
-            for xr in range(w):
-                ck[xr] = np.uint32(0xFFFFFFFF)
-            for x in range(c * w // chunks, (c + 1) * w // chunks):
+                    if in_band:
+                        store_path(cur, out, True)
+            if not in_band:
+                continue
+            pair = (rows - 1 - b) % 2
+            if pair == 0:  # (2) horizontal paths of this row and the next, both directions
+                b_next = max(b - 1, 0)
+                _horizontal_pair(cost, image, p1, p2, p2_table, b, b_next, y0, True,
+                                 left_to_right)
+                _horizontal_pair(cost, image, p1, p2, p2_table, b, b_next, y0, False,
+                                 right_to_left)
+            for xr in range(w):  # (3) totals, left selection, right-view candidates
+                keys[xr] = np.uint32(0xFFFFFFFF)
+            for x in range(w):
                 tot = total[x]
                 ltr = left_to_right[pair, x]
                 rtl = right_to_left[pair, x]
@@ -292,19 +295,16 @@ def upward_horizontal_select(cost: U8, image: F32, partial: U16, dxs: NDArray[np
                         tot[d] += ltr[d] + rtl[d]
                     key = _keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
                 if store_total:
-                    part = partial[y, x]
+                    part = total_out[y, x]
                     for d in range(n):
                         part[d] = tot[d]
                 k, r = select_pixel(tot, key, sel_lo, sel_hi, subpixel, uniqueness)
                 disparity[y, x] = min_disparity + k
                 ratio[y, x] = r
                 if k_lo <= k_hi:
-                    _right_candidates(tot, w - 1 - (x - min_disparity), k_lo, k_hi, ck)
-        for c in prange(chunks):  # (4) right view: merge the chunks' candidates, refine
-            for xr in range(c * w // chunks, (c + 1) * w // chunks):
-                right_key = np.uint32(0xFFFFFFFF)
-                for cc in range(chunks):
-                    right_key = min(right_key, keys[cc, w - 1 - xr])
+                    _right_candidates(tot, w - 1 - (x - min_disparity), k_lo, k_hi, keys)
+            for xr in range(w):  # (4) right view: refine the winners
+                right_key = keys[w - 1 - xr]
                 if right_key == np.uint32(0xFFFFFFFF):
                     disparity_right[y, xr] = math.nan
                     continue

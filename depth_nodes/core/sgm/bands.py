@@ -1,0 +1,146 @@
+"""Bands of rows: how the matcher bounds its memory and shares two cores with other work.
+
+The matcher never holds the (H, W, D) volumes. It cuts the image into bands of rows and,
+per band, computes the costs, sweeps the downward paths (continuing them from the band
+above: exact), then sweeps the upward paths from ``overlap`` rows below the band's end
+(their start is the only approximation), runs the horizontal paths and selects. Memory is
+a few bands' volumes, whatever the image height, and :func:`band_layout` sizes the bands
+so it stays the same whatever the disparity range.
+
+Work is scheduled as tasks with dependencies (:func:`run_tasks`): the downward sweeps form
+one chain, every band's selection can run as soon as its downward sweep is done, and each
+thread takes whichever task is ready. No thread ever waits at a per-row barrier for a
+thread the operating system has descheduled: with one core taken by another process the
+matcher slows down in proportion to the CPU it gets, instead of stalling at every row.
+The bands depend only on the image and the settings, never on the thread count, so every
+thread count gives the same result bit for bit.
+"""
+
+from __future__ import annotations
+
+import heapq
+import os
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numba
+
+# The band kernels are numba parallel functions (ONE_THREAD_GUFUNC in aggregate.py) that
+# several threads run at once: that needs a thread-safe threading layer (OpenMP or TBB;
+# numba's own workqueue aborts on concurrent launches). The user's explicit choice wins.
+if 'NUMBA_THREADING_LAYER' not in os.environ:
+    numba.config.THREADING_LAYER = 'threadsafe'  # type: ignore[attr-defined]
+
+#: Bands an image is cut into at least (when memory allows fewer, larger ones are not
+#: used: the selection of several bands must be able to run while the chain goes on).
+MIN_BANDS = 8
+#: Rows of a band at least (fewer would spend most of the time on the overlap).
+MIN_BAND_ROWS = 16
+#: Cell bytes of a band in flight: 1 of cost, 2 of the downward sum.
+CELL_BYTES = 3
+
+
+@dataclass(frozen=True)
+class Band:
+    """Rows ``y0`` .. ``y0 + rows - 1``, whose upward paths start at row ``y0 + reach - 1``
+    (``reach - rows`` rows of context below the band)."""
+
+    y0: int
+    rows: int
+    reach: int
+
+
+def band_rows(height: int, width: int, disparities: int, *, memory_mb: float,
+              slots: int, overlap: int) -> int:
+    """Rows per band: an eighth of the image at most, and few enough that ``slots`` bands
+    in flight (their costs with the overlap, and downward sums) fit ``memory_mb``."""
+    row_bytes = width * disparities * CELL_BYTES
+    budget = memory_mb * 1e6 / slots
+    by_memory = int((budget - overlap * width * disparities) // row_bytes)
+    by_count = -(-height // MIN_BANDS)
+    return max(MIN_BAND_ROWS, min(by_count, by_memory))
+
+
+def band_layout(height: int, rows: int, overlap: int) -> list[Band]:
+    """The bands of ``rows`` rows covering ``height`` (the last one shorter), each reaching
+    ``overlap`` rows below its end or to the image bottom."""
+    return [Band(y0, min(rows, height - y0), min(height, y0 + rows + overlap) - y0)
+            for y0 in range(0, height, rows)]
+
+
+@dataclass
+class Task:
+    """A unit of work: ``run(worker)`` once every task in ``after`` has finished. Lower
+    ``priority`` runs first among the ready tasks (ties: the order given)."""
+
+    run: Callable[[int], None]
+    after: Sequence[int] = ()
+    priority: int = 0
+
+
+def run_tasks(tasks: Sequence[Task], threads: int) -> None:
+    """Run ``tasks`` on ``threads`` threads (the calling one included), each taking the
+    ready task of lowest priority. ``run`` receives the worker's index, 0 .. threads - 1,
+    for per-worker scratch. The first exception stops the work and is raised here once
+    every running task has returned.
+
+    Raises:
+        ValueError: A dependency refers to a later task (or itself): no cycle can form.
+    """
+    n = len(tasks)
+    waiting = [len(t.after) for t in tasks]
+    dependents: list[list[int]] = [[] for _ in range(n)]
+    for i, task in enumerate(tasks):
+        for j in task.after:
+            if not 0 <= j < i:
+                raise ValueError(f'task {i} depends on task {j}: dependencies must come first')
+            dependents[j].append(i)
+    ready = [(t.priority, i) for i, t in enumerate(tasks) if not t.after]
+    heapq.heapify(ready)
+    lock = threading.Condition()
+    state = {'finished': 0}
+    errors: list[BaseException] = []
+
+    def work(worker: int) -> None:
+        numba.set_num_threads(1)  # each task is one thread's (ONE_THREAD_GUFUNC)
+        while True:
+            with lock:
+                while not ready and not errors and state['finished'] < n:
+                    lock.wait()
+                if errors or state['finished'] >= n:
+                    return
+                _, i = heapq.heappop(ready)
+            try:
+                tasks[i].run(worker)
+            except BaseException as error:  # handed to the caller below
+                with lock:
+                    errors.append(error)
+                    lock.notify_all()
+                return
+            with lock:
+                state['finished'] += 1
+                for j in dependents[i]:
+                    waiting[j] -= 1
+                    if waiting[j] == 0:
+                        heapq.heappush(ready, (tasks[j].priority, j))
+                lock.notify_all()
+
+    helpers = [threading.Thread(target=work, args=(k,), name=f'sgm-band-{k}', daemon=True)
+               for k in range(1, max(1, min(threads, n)))]
+    for thread in helpers:
+        thread.start()
+    own_threads = numba.get_num_threads()
+    try:
+        work(0)
+    except BaseException as error:  # e.g. Ctrl-C while waiting: stop the helpers too
+        with lock:
+            errors.append(error)
+            lock.notify_all()
+        raise
+    finally:
+        numba.set_num_threads(own_threads)
+        for thread in helpers:
+            thread.join()
+    if errors:
+        raise errors[0]

@@ -1,0 +1,153 @@
+"""The banded matcher: its task scheduler, band sizes, and the aggregated volume of the
+memory-bounded mode against a reference built from the plain per-path references."""
+
+from __future__ import annotations
+
+import threading
+
+import numba
+import numpy as np
+import pytest
+
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.core.sgm.aggregate import (
+    VERTICAL_DIRECTIONS,
+    aggregate_path_reference,
+    all_directions,
+)
+from depth_nodes.core.sgm.bands import Task, band_layout, band_rows, run_tasks
+from depth_nodes.core.sgm.cost import cost_volume_reference
+
+
+def _pair(h: int, w: int, shift: int = 4, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    wide = rng.integers(0, 256, (h, w + shift)).astype(np.uint8)
+    right = np.clip(wide[:, shift:].astype(int) + rng.integers(-3, 4, (h, w)), 0, 255)
+    return np.ascontiguousarray(wide[:, :w]), right.astype(np.uint8)  # disparity: shift
+
+
+@pytest.mark.parametrize('threads', [1, 2, 3])
+def test_tasks_run_once_after_their_dependencies(threads: int) -> None:
+    """A diamond-shaped graph of 40 tasks: each runs once, after every task it depends on,
+    on a worker index below the thread count."""
+    done: list[int] = []
+    workers: set[int] = set()
+    lock = threading.Lock()
+
+    def task(i: int) -> Task:
+        def run(worker: int) -> None:
+            with lock:
+                assert all(j in done for j in after[i]), (i, after[i], done)
+                done.append(i)
+                workers.add(worker)
+        return Task(run, after[i], priority=i % 3)
+
+    after = [[j for j in (i - 1, i - 7, i // 2) if 0 <= j < i] for i in range(40)]
+    run_tasks([task(i) for i in range(40)], threads)
+    assert sorted(done) == list(range(40))
+    assert workers <= set(range(threads))
+
+
+def test_the_first_error_is_raised_and_stops_the_rest() -> None:
+    ran: list[int] = []
+
+    def ok(i: int) -> Task:
+        return Task(lambda worker: ran.append(i), [i - 1])
+
+    def fail(worker: int) -> None:
+        raise KeyError('band 3')
+
+    tasks = [Task(lambda worker: ran.append(0)), ok(1), ok(2), Task(fail, [2]), ok(4), ok(5)]
+    with pytest.raises(KeyError, match='band 3'):
+        run_tasks(tasks, 2)
+    assert ran == [0, 1, 2]  # nothing after the failed task ran
+
+
+def test_a_dependency_on_a_later_task_is_refused() -> None:
+    with pytest.raises(ValueError, match='dependencies must come first'):
+        run_tasks([Task(lambda worker: None, [1]), Task(lambda worker: None)], 1)
+
+
+def test_bands_cover_the_image_once() -> None:
+    bands = band_layout(100, 16, 24)
+    assert [b.y0 for b in bands] == list(range(0, 100, 16))
+    assert sum(b.rows for b in bands) == 100
+    assert [b.reach for b in bands[-3:]] == [100 - 64, 100 - 80, 100 - 96]  # to the bottom
+    assert bands[0].reach == 16 + 24
+
+
+def test_band_height_keeps_memory_constant_across_disparity_ranges() -> None:
+    """HD frames: rows x disparities (the volume of a band) within 10% for 128 and 256,
+    and the bands in flight within the budget."""
+    sizes = {n: band_rows(1080, 1920, n, memory_mb=400, slots=3, overlap=64)
+             for n in (128, 256)}
+    volume = {n: rows * n for n, rows in sizes.items()}
+    assert abs(volume[256] / volume[128] - 1) < 0.1
+    for n, rows in sizes.items():
+        in_flight = 3 * ((rows + 64) * 1920 * n + 2 * rows * 1920 * n)
+        assert in_flight <= 400e6
+    assert band_rows(480, 640, 128, memory_mb=160, slots=3, overlap=64) == 60  # H / 8
+
+
+def _bounded_reference(cost: np.ndarray, image: np.ndarray, paths: int, p1: int, p2: int,
+                       scale: float, rows: int, overlap: int) -> np.ndarray:
+    """The memory-bounded matcher's total: the downward and horizontal paths over the
+    whole image, the upward ones of each band started ``overlap`` rows below it."""
+    h = cost.shape[0]
+    down = VERTICAL_DIRECTIONS[paths]
+    whole = [(1, 0), (-1, 0), *down]
+    total = sum(aggregate_path_reference(cost, image, dx, dy, p1, p2, scale)
+                for dx, dy in whole)
+    for band in band_layout(h, rows, overlap):
+        part = slice(band.y0, band.y0 + band.reach)
+        up = sum(aggregate_path_reference(cost[part], image[part], -dx, -dy, p1, p2, scale)
+                 for dx, dy in down)
+        total[band.y0:band.y0 + band.rows] += up[:band.rows]
+    return total  # type: ignore[no-any-return]
+
+
+@pytest.mark.parametrize(('paths', 'scale', 'overlap'), [(8, 0.0, 3), (8, 12.0, 5),
+                                                         (16, 7.5, 4), (4, 0.0, 0)])
+def test_bounded_bands_match_their_reference(paths: int, scale: float, overlap: int) -> None:
+    """With a budget too small for whole volumes, 6-row bands whose upward paths start
+    ``overlap`` rows below them: the total equals the reference of exactly that."""
+    left, right = _pair(29, 31)
+    params = SgmParams(disparity_range=7, census_width=5, census_height=5, P1=5, P2=60,
+                       p2_adaptive_scale=scale, paths=paths, border_cost=0.0, band_rows=6,
+                       band_overlap=overlap, memory_mb=0.0)
+    matcher = SgmMatcher(params)
+    assert not matcher.whole_volumes(29, 31)
+    matcher.match(left, right, keep_total=True)
+    cost = cost_volume_reference(left, right, min_disparity=0, disparity_range=7,
+                                 census_window=(5, 5), intensity_weight=1,
+                                 match_brightness=True)
+    want = _bounded_reference(cost, left.astype(np.float32), paths, 5, 60, scale, 6, overlap)
+    np.testing.assert_array_equal(matcher.total.astype(np.int64), want)
+    assert len(all_directions(paths)) == paths
+
+
+@pytest.mark.parametrize(('paths', 'memory_mb'), [(8, 160.0), (8, 0.0), (5, 0.0)])
+def test_every_thread_count_gives_the_same_result(paths: int, memory_mb: float) -> None:
+    """Whole volumes (two chains meeting) and bounded bands, on one and on two threads:
+    bit-identical outputs, and 5 paths in bands equal one band (single pass: exact)."""
+    left, right = _pair(70, 90, seed=5)
+    params = SgmParams(disparity_range=16, paths=paths, band_rows=9, memory_mb=memory_mb,
+                       band_overlap=12)
+    outputs = []
+    before = numba.get_num_threads()
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):  # type: ignore[attr-defined]
+            numba.set_num_threads(threads)
+            result = SgmMatcher(params).match(left, right)
+            outputs.append([a.copy() for a in (result.disparity, result.disparity_right,
+                                                result.cost_ratio)])
+    finally:
+        numba.set_num_threads(before)
+    for got, want in zip(outputs[0], outputs[1], strict=True):
+        np.testing.assert_array_equal(got, want)
+    if paths == 5:
+        one = SgmMatcher(SgmParams(disparity_range=16, paths=5, band_rows=70)).match(left, right)
+        np.testing.assert_array_equal(one.disparity, outputs[0][0])
+    valid = outputs[0][0][np.isfinite(outputs[0][0])]
+    assert valid.size > 0.5 * left.size
+    assert np.median(valid) == 4
