@@ -351,11 +351,28 @@ def _check_bench_args(args: argparse.Namespace) -> None:
     if args.width < 16 or args.height < 16:
         raise ConfigError(f'--width and --height must be at least 16, got {args.width}x'
                           f'{args.height}')
-    if not 1 <= args.disparities < 640:  # the sgm bench matches a 640 px wide pair
-        raise ConfigError(f'--disparities must be in 1..639 (the pair is 640 px wide), got '
-                          f'{args.disparities}')
+    width = _size(args.size)[0]
+    if not 1 <= args.disparities < width:
+        raise ConfigError(f'--disparities must be in 1..{width - 1} (the pair is {width} px '
+                          f'wide), got {args.disparities}')
+    if args.busy < 0:
+        raise ConfigError(f'--busy must be >= 0, got {args.busy}')
     if not args.rate > 0:
         raise ConfigError(f'--rate must be positive, got {args.rate}')
+
+
+def _size(text: str) -> tuple[int, int]:
+    """``WxH`` as (W, H).
+
+    Raises:
+        ConfigError: It is not two integers of at least 16 joined by x.
+    """
+    parts = text.lower().split('x')
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts) or \
+            min(int(p) for p in parts) < 16:
+        raise ConfigError(f'--size must be WxH with both at least 16 (e.g. 1280x720), got '
+                          f'{text!r}')
+    return int(parts[0]), int(parts[1])
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -392,7 +409,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                             interpolation=args.interpolation).format())
     elif args.stage == 'sgm':
         print(bench_sgm(repeats=args.frames or 10, disparities=args.disparities,
-                        paths=args.paths or 8).format())
+                        paths=args.paths or 8, size=_size(args.size),
+                        busy=args.busy).format())
     elif args.stage == 'cross_check':
         from depth_nodes.tools.bench.nodes import bench_cross_check
 
@@ -674,6 +692,12 @@ def build_parser() -> argparse.ArgumentParser:
                        help='OpenCV and numba threads (default 2); --live: of the SGM node '
                        '(0 = every core; default: as config/stereo_pipeline.yaml says)')
     bench.add_argument('--disparities', type=int, default=128, help='sgm: disparity range')
+    bench.add_argument('--size', default='640x480', metavar='WxH',
+                       help='sgm: frame size; the bundled pair is resized to it (default '
+                       '640x480)')
+    bench.add_argument('--busy', type=int, default=0, metavar='N',
+                       help='sgm: also time everything with N busy-loop processes beside '
+                       'it (a robot computer\'s other work), and our matcher on one thread')
     bench.add_argument('--paths', type=int, choices=(4, 5, 8, 16),
                        help='sgm: aggregation paths (default 8); --live: of the SGM node '
                        '(default: as config/stereo_pipeline.yaml says), OpenCV then in '

@@ -137,8 +137,13 @@ class SgmBench:
     hh_ms: float
     sgbm_ms: float
     workspace_mb: float
-    peak_rss_mb: float
+    #: Peak RSS (MB) of a fresh process matching one frame, by method; empty if not run.
+    peak_mb: dict[str, float]
     cold_start: dict[str, float]
+    #: Busy-loop processes during the contended run (0: none run).
+    busy: int = 0
+    #: Times (ms) with ``busy`` cores taken: ours on ``threads`` and on one thread, OpenCV.
+    busy_ms: dict[str, float] | None = None
 
     def format(self) -> str:
         """The printed report."""
@@ -146,16 +151,34 @@ class SgmBench:
         lines = [
             f'sgm: {self.width}x{self.height}, {self.disparities} disparities, {self.paths} '
             f'paths, {self.threads} threads (numba and OpenCV), median of {self.repeats} '
-            'interleaved rounds on the bundled stereo_vga pair',
+            'interleaved rounds on the bundled stereo_vga pair'
+            + ('' if (self.width, self.height) == (640, 480) else ' (resized)'),
             f'  census SGM (this package)   {self.ours_ms:8.1f} ms   '
             f'{updates / self.ours_ms / 1e6:5.2f} G cell-path updates/s',
             f'  OpenCV MODE_HH (8 paths)    {self.hh_ms:8.1f} ms   '
             f'ours / MODE_HH   = {self.ours_ms / self.hh_ms:5.2f}',
             f'  OpenCV MODE_SGBM (5 paths)  {self.sgbm_ms:8.1f} ms   '
             f'ours / MODE_SGBM = {self.ours_ms / self.sgbm_ms:5.2f}',
-            f'  matcher buffers {self.workspace_mb:.0f} MB (reused every frame); '
-            f'process peak RSS {self.peak_rss_mb:.0f} MB',
+            f'  matcher buffers {self.workspace_mb:.0f} MB (reused every frame)',
         ]
+        if self.peak_mb:
+            lines.append('  peak memory of a fresh process matching one frame (RSS): ours '
+                         f'{self.peak_mb["ours"]:.0f} MB, MODE_HH {self.peak_mb["hh"]:.0f} '
+                         f'MB, MODE_SGBM {self.peak_mb["sgbm"]:.0f} MB (the same imports; '
+                         f'none matching: {self.peak_mb["idle"]:.0f} MB)')
+        if self.busy_ms:
+            b = self.busy_ms
+            lines += [
+                f'  with {self.busy} busy-loop process(es) beside it:',
+                f'    census SGM, {self.threads} threads {b["ours"]:8.1f} ms   '
+                f'contended / quiet = {b["ours"] / self.ours_ms:5.2f}',
+                f'    census SGM, 1 thread  {b["ours_1"]:10.1f} ms   '
+                f'{self.threads} threads / 1 thread = {b["ours"] / b["ours_1"]:5.2f}',
+                f'    OpenCV MODE_HH        {b["hh"]:10.1f} ms   '
+                f'contended / quiet = {b["hh"] / self.hh_ms:5.2f}',
+                f'    OpenCV MODE_SGBM      {b["sgbm"]:10.1f} ms   '
+                f'contended / quiet = {b["sgbm"] / self.sgbm_ms:5.2f}',
+            ]
         if self.cold_start:
             lines.append(
                 f'  cold start, warm numba cache: import {self.cold_start["import_s"]:.2f} s, '
@@ -214,31 +237,103 @@ def cold_start_sgm() -> dict[str, float]:
     return {k: float(v) for k, v in json.loads(out.strip().splitlines()[-1]).items()}
 
 
-def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
-              cold_start: bool = True) -> SgmBench:
-    """Time census SGM against OpenCV MODE_HH and MODE_SGBM on the same 640x480 pair."""
-    import dataclasses
-    import resource
+_PEAK = '''
+import json, sys
+import cv2, numba, numpy as np
+from depth_nodes.core.baseline import TUNED_HH, TUNED_SGBM, opencv_sgbm
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.tools.bench.sgm import bench_pair
+method, w, h, n, paths, threads = sys.argv[1], *map(int, sys.argv[2:])
+cv2.setNumThreads(threads)
+numba.set_num_threads(threads)
+left, right = bench_pair(w, h)
+if method == 'ours':
+    SgmMatcher(SgmParams(disparity_range=n, paths=paths)).match(left, right)
+elif method != 'idle':
+    opencv_sgbm(left, right, TUNED_HH if method == 'hh' else TUNED_SGBM, disparity_range=n)
+# VmHWM, not ru_maxrss: the latter carries the parent's peak across fork and exec
+peak = [line for line in open('/proc/self/status') if line.startswith('VmHWM:')]
+print(json.dumps(int(peak[0].split()[1]) / 1024))
+'''
 
+
+def peak_memory(width: int, height: int, disparities: int, paths: int,
+                threads: int) -> dict[str, float]:
+    """Peak RSS in MB of a fresh interpreter matching one frame, per method (and of one
+    that loads the same modules and pair but matches nothing: ``idle``)."""
+    import json
+    import subprocess
+    import sys
+
+    peaks = {}
+    for method in ('idle', 'ours', 'hh', 'sgbm'):
+        out = subprocess.run([sys.executable, '-c', _PEAK, method, str(width), str(height),
+                              str(disparities), str(paths), str(threads)],
+                             capture_output=True, text=True, check=True).stdout
+        peaks[method] = float(json.loads(out.strip().splitlines()[-1]))
+    return peaks
+
+
+def bench_pair(width: int = 640, height: int = 480) -> tuple[Any, Any]:
+    """The bundled rectified pair, resized to ``width`` x ``height`` when that differs
+    (disparities then scale with the width)."""
+    left, right = _bundled_pair()
+    if left.shape != (height, width):
+        size = (width, height)
+        left, right = (cv2.resize(img, size, interpolation=cv2.INTER_LINEAR)
+                       for img in (left, right))
+    return left, right
+
+
+def busy_loops(count: int) -> list[Any]:
+    """Start ``count`` processes that each keep a core busy (a plain loop), as other work
+    on a robot's computer would; the caller terminates them."""
+    import subprocess
+    import sys
+
+    return [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+            for _ in range(count)]
+
+
+def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
+              size: tuple[int, int] = (640, 480), busy: int = 0, memory: bool = True,
+              cold_start: bool = True) -> SgmBench:
+    """Time census SGM against OpenCV MODE_HH and MODE_SGBM on the same pair; with
+    ``busy``, again with that many cores kept busy by other processes."""
     import numba
 
     from depth_nodes.core.baseline import TUNED_HH, TUNED_SGBM, opencv_sgbm
     from depth_nodes.core.sgm import SgmMatcher, SgmParams
 
-    left, right = _bundled_pair()
-    h, w = left.shape
+    w, h = size
+    left, right = bench_pair(w, h)
+    threads = numba.get_num_threads()
     matcher = SgmMatcher(SgmParams(disparity_range=disparities, paths=paths))
-    hh = dataclasses.replace(TUNED_HH)
-    sgbm = dataclasses.replace(TUNED_SGBM)
-    ms = median_ms({
+
+    def one_thread() -> None:
+        numba.set_num_threads(1)
+        try:
+            matcher.match(left, right)
+        finally:
+            numba.set_num_threads(threads)
+
+    fns = {
         'ours': lambda: matcher.match(left, right),
-        'hh': lambda: opencv_sgbm(left, right, hh, disparity_range=disparities),
-        'sgbm': lambda: opencv_sgbm(left, right, sgbm, disparity_range=disparities),
-    }, repeats, settle=0.05)
-    workspace = sum(getattr(b, 'nbytes', 0) + sum(getattr(x, 'nbytes', 0) for x in b)
-                    if isinstance(b, tuple) else getattr(b, 'nbytes', 0)
-                    for b in matcher._buf.values())
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    return SgmBench(w, h, disparities, paths, repeats, numba.get_num_threads(), ms['ours'],
-                    ms['hh'], ms['sgbm'], workspace / 1e6, peak,
-                    cold_start_sgm() if cold_start else {})
+        'hh': lambda: opencv_sgbm(left, right, TUNED_HH, disparity_range=disparities),
+        'sgbm': lambda: opencv_sgbm(left, right, TUNED_SGBM, disparity_range=disparities),
+    }
+    ms = median_ms(fns, repeats, settle=0.05)
+    busy_ms = None
+    if busy:
+        loops = busy_loops(busy)
+        try:
+            time.sleep(0.5)  # let them take their cores
+            busy_ms = median_ms({**fns, 'ours_1': one_thread}, repeats, settle=0.05)
+        finally:
+            for loop in loops:
+                loop.kill()
+                loop.wait()
+    return SgmBench(w, h, disparities, paths, repeats, threads, ms['ours'], ms['hh'],
+                    ms['sgbm'], matcher.workspace_bytes / 1e6,
+                    peak_memory(w, h, disparities, paths, threads) if memory else {},
+                    cold_start_sgm() if cold_start else {}, busy, busy_ms)
