@@ -1,15 +1,14 @@
 """Bands of rows: how the matcher bounds its memory and shares two cores with other work.
 
-The matcher never holds the (H, W, D) volumes. It cuts the image into bands of rows and,
-per band, computes the costs, sweeps the downward paths (continuing them from the band
-above: exact), then sweeps the upward paths from ``overlap`` rows below the band's end
-(their start is the only approximation), runs the horizontal paths and selects. Memory is
-a few bands' volumes, whatever the image height, and :func:`band_layout` sizes the bands
-so it stays the same whatever the disparity range.
-
-Work is scheduled as tasks with dependencies (:func:`run_tasks`): the downward sweeps form
-one chain, every band's selection can run as soon as its downward sweep is done, and each
-thread takes whichever task is ready. No thread ever waits at a per-row barrier for a
+The matcher cuts the image into bands of rows and schedules each band's steps as tasks
+with dependencies (:func:`run_tasks`); each thread takes whichever task is ready. When
+the frame's volumes fit the memory budget, the downward paths run as one chain of bands
+from the top and the upward ones as another from the bottom, at once, and a band is
+selected once both have passed it (exact). Otherwise only a few bands are held: per band
+the costs and the downward sweep (continuing the band above: exact), then the upward
+paths from ``overlap`` rows below the band's end (their start is the only approximation),
+the horizontal paths and the selection. :func:`band_rows` sizes those bands so that
+memory stays the same whatever the disparity range. No thread ever waits at a per-row barrier for a
 thread the operating system has descheduled: with one core taken by another process the
 matcher slows down in proportion to the CPU it gets, instead of stalling at every row.
 The bands depend only on the image and the settings, never on the thread count, so every

@@ -323,7 +323,7 @@ class SgmMatcher:
         self._kept_total = keep_total
         frame = _Frame(self, p, b, inputs, np.ascontiguousarray(left, dtype=np.float32),
                        keep_total)
-        run_tasks(frame.tasks(threads), threads)
+        run_tasks(frame.tasks(), threads)
         self.border_cost = frame.border_cost
         if p.median_filter:
             _median3(b['disparity'], p.min_disparity)
@@ -370,9 +370,14 @@ def sgm_match(left: NDArray[Any], right: NDArray[Any], params: SgmParams | None 
 
 
 class _Frame:
-    """One match as tasks for :func:`bands.run_tasks`: the border statistic (two halves
-    of its sampled rows), then per band a downward sweep (a chain: each continues the
-    paths of the band above) and a selection (any order, once its band's sweep is done)."""
+    """One match as tasks for :func:`bands.run_tasks`.
+
+    First the border statistic (two halves of its sampled rows, then their sum). Whole
+    volumes: per band its costs, its downward sweep (a chain from the top: each continues
+    the paths of the band above), its upward sweep (a chain from the bottom) and, once both
+    have passed it, its selection. Bands in flight: per band its costs and downward sweep
+    (the chain), then its selection with its own upward paths; a band's buffers are reused
+    once the selection that last held them is done."""
 
     def __init__(self, matcher: SgmMatcher, params: SgmParams, buffers: dict[str, Any],
                  inputs: CostInputs, image: F32, keep_total: bool) -> None:
@@ -385,28 +390,27 @@ class _Frame:
         self.keep_total = keep_total
         self.extrapolate = params.border_cost > 0
         self.border_cost = 0
-        self.samples: list[float] = []
+        self.samples = [0.0, 0.0]
         self.h, self.w = image.shape
-        self.lock = threading.Lock()
         bands = len(buffers['bands'])
         self.band_locks = [threading.Lock() for _ in range(bands)]
         self.swept = [False] * bands
 
-    def tasks(self, threads: int) -> list[Task]:
+    def tasks(self) -> list[Task]:
         """The frame's tasks, dependencies first."""
         tasks: list[Task] = []
-        ys = range(0, self.h, BORDER_ROW_STEP)
         if self.extrapolate:
-            self.samples = [0.0, 0.0]
+            ys = range(0, self.h, BORDER_ROW_STEP)
             half = (len(ys) + 1) // 2
-            for part, rows in enumerate((ys[:half], ys[half:])):
-                tasks.append(Task(self._sample(part, rows), priority=0))
-        samples = [*range(len(tasks))]
+            tasks += [Task(self._sample(part, rows))
+                      for part, rows in enumerate((ys[:half], ys[half:]))]
+            tasks.append(Task(lambda worker: self._border(), [0, 1]))
+        border = [len(tasks) - 1] if tasks else []
         bands = len(self.buf['bands'])
         if self.buf['whole']:
             # costs from both ends inwards, the two chains meeting in the middle
             cost = [len(tasks) + k for k in range(bands)]
-            tasks += [Task(self._cost(k), samples, 2 * min(k, bands - 1 - k))
+            tasks += [Task(self._cost(k), border, 2 * min(k, bands - 1 - k))
                       for k in range(bands)]
             down = [len(tasks) + k for k in range(bands)]
             tasks += [Task(self._sweep(k, upward=False), [cost[k], *down[k - 1:k]], 2 * k + 1)
@@ -421,7 +425,7 @@ class _Frame:
         slots = len(self.buf['cost'])
         for k in range(bands):
             down_k = first_band + 2 * k
-            after = samples if k == 0 else [down_k - 2]
+            after = border if k == 0 else [down_k - 2]
             if k >= slots:
                 after.append(down_k - 2 * slots + 1)  # the selection that last used the slot
             tasks.append(Task(self._down(k), after, priority=1))
@@ -429,7 +433,7 @@ class _Frame:
         return tasks
 
     def _border(self) -> None:
-        """Set :attr:`border_cost` from the sampled rows (once both halves are in)."""
+        """Set :attr:`border_cost` from the sampled rows."""
         p = self.p
         count = mean_best_count(self.h, self.w, p.disparity_range, p.min_disparity,
                                 BORDER_ROW_STEP)
@@ -439,9 +443,6 @@ class _Frame:
         """Whole volumes: the cost of band k (a slice of the frame's volume)."""
         def run(worker: int) -> None:
             band = self.buf['bands'][k]
-            with self.lock:
-                if self.extrapolate and not self.border_cost:
-                    self._border()
             cost = self.inputs.rows(band.y0, self.buf['cost'][0][band.y0:band.y0 + band.rows])
             if self.extrapolate:
                 fill_outside(cost, self.p.min_disparity, self.border_cost)
@@ -473,8 +474,6 @@ class _Frame:
             p, b = self.p, self.buf
             band = b['bands'][k]
             slot = k % len(b['cost'])
-            if k == 0 and self.extrapolate:
-                self._border()
             cost = self.inputs.rows(band.y0, b['cost'][slot][:band.reach])
             if self.extrapolate:
                 fill_outside(cost, p.min_disparity, self.border_cost)

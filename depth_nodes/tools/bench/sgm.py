@@ -140,6 +140,8 @@ class SgmBench:
     #: Peak RSS (MB) of a fresh process matching one frame, by method; empty if not run.
     peak_mb: dict[str, float]
     cold_start: dict[str, float]
+    #: What bounds the path recurrence (:func:`kernel_limits`); empty if not run.
+    limits: dict[str, float] | None = None
     #: Busy-loop processes during the contended run (0: none run).
     busy: int = 0
     #: Times (ms) with ``busy`` cores taken: ours on ``threads`` and on one thread, OpenCV.
@@ -166,6 +168,15 @@ class SgmBench:
                          f'{self.peak_mb["ours"]:.0f} MB, MODE_HH {self.peak_mb["hh"]:.0f} '
                          f'MB, MODE_SGBM {self.peak_mb["sgbm"]:.0f} MB (the same imports; '
                          f'none matching: {self.peak_mb["idle"]:.0f} MB)')
+        if self.limits:
+            k = self.limits
+            lines.append(
+                '  downward sweep alone (3 paths, one thread, 640x480x128): '
+                f'{k["whole_ms"]:.1f} ms, {k["volume_gbs"]:.1f} GB/s of volume read and '
+                'written; the same rows from '
+                f'a band small enough for L2: {k["cached_ms"]:.1f} ms; a plain memory copy '
+                f'runs at {k["copy_gbs"]:.1f} GB/s (so the recurrence is bound by arithmetic '
+                'when the cached run is about as slow)')
         if self.busy_ms:
             b = self.busy_ms
             lines += [
@@ -295,6 +306,49 @@ def busy_loops(count: int) -> list[Any]:
             for _ in range(count)]
 
 
+def kernel_limits(width: int = 640, height: int = 480,
+                  disparities: int = 128) -> dict[str, float]:
+    """Is the path recurrence bound by memory bandwidth or by arithmetic? The downward
+    sweep (3 directions, one thread) over a whole random volume of this size, the same
+    number of rows swept from an 8-row band that stays in the core's L2 cache, and a
+    plain memory copy for the bandwidth the machine offers one thread."""
+    import numba
+
+    from depth_nodes.core.sgm.aggregate import new_line_buffers, p2_table, sweep_down
+
+    rng = np.random.default_rng(0)
+    h, w, n = height, width, disparities
+    cost = rng.integers(0, 60, (h, w, n), dtype=np.uint8)
+    image = (rng.random((h, w)) * 255).astype(np.float32)
+    dxs, dys = np.array([0, 1, -1]), np.array([1, 1, 1])
+    table = p2_table(18, 220, 8.0)
+    (lb0, lb1, lb2), mbuf = new_line_buffers(3, w, n)
+    partial = np.empty_like(cost, np.uint16)
+    rows = min(8, h)
+
+    def sweep(volume: Any, out: Any, count: int, repeats: int) -> None:
+        for _ in range(repeats):
+            sweep_down(volume, image, 0, count, dxs, dys, 18, 220, table, lb0, lb1, lb2,
+                       mbuf, out)
+
+    source = np.ones(cost.nbytes + partial.nbytes, np.uint8)
+    target = np.empty_like(source)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        ms = median_ms({
+            'whole': lambda: sweep(cost, partial, h, 1),
+            'cached': lambda: sweep(cost[:rows], partial[:rows], rows, h // rows),
+            'copy': lambda: np.copyto(target, source),
+        }, 3)
+    finally:
+        numba.set_num_threads(threads)
+    return {'whole_ms': ms['whole'],
+            'cached_ms': ms['cached'] * h / (h // rows * rows),
+            'volume_gbs': (cost.nbytes + partial.nbytes) / ms['whole'] / 1e6,
+            'copy_gbs': 2 * source.nbytes / ms['copy'] / 1e6}
+
+
 def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
               size: tuple[int, int] = (640, 480), busy: int = 0, memory: bool = True,
               cold_start: bool = True) -> SgmBench:
@@ -336,4 +390,5 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
     return SgmBench(w, h, disparities, paths, repeats, threads, ms['ours'], ms['hh'],
                     ms['sgbm'], matcher.workspace_bytes / 1e6,
                     peak_memory(w, h, disparities, paths, threads) if memory else {},
-                    cold_start_sgm() if cold_start else {}, busy, busy_ms)
+                    cold_start_sgm() if cold_start else {},
+                    kernel_limits(), busy, busy_ms)
