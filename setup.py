@@ -55,6 +55,8 @@ setup(
     extras_require={
         'ros': ROS_WHEELS,
         'dev': ['pytest', 'ruff', 'mypy', 'colcon-common-extensions', 'catkin_pkg'],
+        # `depth-nodes process --ray`: bag archives on a Ray cluster (local or existing)
+        'cluster': ['ray'],
     },
     zip_safe=False,  # Fast DDS reads the profile from a real file
     maintainer='depth_nodes maintainers',

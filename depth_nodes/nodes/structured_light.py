@@ -168,6 +168,10 @@ class StructuredLightNode(DepthNode):
                       f'(sequence_timeout {timeout:g} s)')
             self.assembler.reset()
 
+    def holds_input(self) -> bool:
+        """Also a sequence being gathered, or frames and tags waiting for each other."""
+        return super().holds_input() or bool(self.assembler.pending or self.pairer.held)
+
     def finish_stream(self) -> None:
         """The stream ended: count the incomplete sequence and the unpaired frames and
         tags (see :meth:`DepthNode.finish_stream`)."""

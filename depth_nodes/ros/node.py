@@ -396,6 +396,12 @@ class DepthNode(Node):
             sync.reset()
             seen.clear()
 
+    def holds_input(self) -> bool:
+        """True while a message waits for its partners (in a synchroniser, or in a node's
+        own state: nodes with state of their own extend it). `process` on several workers
+        hands a segment over only where no node holds anything."""
+        return any(sync.queued for sync, _ in self._syncs)
+
     def finish_stream(self) -> None:
         """The input stream ended (the offline harness calls this after the last message):
         count what the node still holds, which no later message can complete, as

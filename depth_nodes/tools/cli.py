@@ -104,15 +104,20 @@ def _cmd_process(args: argparse.Namespace) -> int:
     from depth_nodes.graph.description import load_graph_config
     from depth_nodes.tools.bags.process import default_config_path, process_bag, select_nodes
 
+    if args.workers < 1:
+        raise ConfigError(f'--workers must be at least 1, got {args.workers}')
     config = _renamed(load_graph_config(args.config or default_config_path()), args)
     config = select_nodes(config, args.nodes)
     _warn_unmatched(config, args.params)
     with signals.graceful():
         report = process_bag(args.in_bag, args.out_bag, config=config,
                              params_file=args.params, overwrite=args.force,
-                             progress=sys.stderr, image_transport=args.image_transport)
+                             progress=sys.stderr, image_transport=args.image_transport,
+                             workers=args.workers, ray=args.ray or bool(args.ray_address),
+                             ray_address=args.ray_address)
     print(f'{args.in_bag} -> {args.out_bag} (graph {config.name})')
     print(report.format())
+    print(report.summary())
     if report.interrupted:
         print(f'depth-nodes process: interrupted after {report.done} of {report.total} '
               f'messages; {args.out_bag} holds what was done', file=sys.stderr)
@@ -472,6 +477,17 @@ def build_parser() -> argparse.ArgumentParser:
                       help='ROS 2 parameter file overriding node parameters')
     proc.add_argument('--nodes', nargs='+', help='run only these nodes of the graph')
     proc.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
+    proc.add_argument('--workers', type=int, default=1, metavar='N',
+                      help='copies of the graph processing segments of the bag at once, each '
+                      'in its own (spawned) process; the output is the same as with one '
+                      '(default 1)')
+    proc.add_argument('--ray', action='store_true',
+                      help='run the workers as Ray actors on a local Ray cluster started for '
+                      'the run')
+    proc.add_argument('--ray-address', metavar='ADDRESS',
+                      help='run the workers on the existing Ray cluster at ADDRESS (e.g. '
+                      'ray://head:10001 or auto); its machines need depth_nodes installed '
+                      'and the bag at the same path')
     _camera_options(proc, auto=True)
     proc.set_defaults(func=_cmd_process)
 

@@ -44,6 +44,11 @@ MODULE_KEYS = {
     'compression': 'python3-rosbags-pip',
     **{name: name for name in JAZZY_ROS_PACKAGES},
 }
+#: Imports of an optional feature, behind an ImportError that says what to install: not a
+#: dependency of the package on a robot (setup.py's extras name them).
+OPTIONAL = {
+    'ray': 'cluster',  # depth-nodes process --ray
+}
 
 
 def _package() -> tuple[Package, list[str]]:
@@ -118,10 +123,21 @@ def test_every_imported_module_is_declared() -> None:
     """A new third-party import needs its key in package.xml (and in MODULE_KEYS here)."""
     package, _ = _package()
     declared = {d.name for d in package.exec_depends}
-    imported = _imported_modules()
+    imported = {m: files for m, files in _imported_modules().items() if m not in OPTIONAL}
     unmapped = {m: files[0] for m, files in imported.items() if m not in MODULE_KEYS}
     assert not unmapped, f'imports with no known rosdep key: {unmapped}'
     missing = {m: MODULE_KEYS[m] for m in imported if MODULE_KEYS[m] not in declared}
     assert not missing, f'imported but not an exec_depend in package.xml: {missing}'
     for module in ('rclpy', 'numpy', 'cv2', 'yaml', 'rosbags', 'launch_ros'):
         assert module in imported  # the scan sees the package's real imports
+
+
+def test_optional_imports_are_setup_extras() -> None:
+    tree = ast.parse((REPO / 'setup.py').read_text())
+    extras = next(kw.value for node in ast.walk(tree) if isinstance(node, ast.Call)
+                  for kw in node.keywords if kw.arg == 'extras_require')
+    assert isinstance(extras, ast.Dict)
+    literal = {ast.literal_eval(k): v for k, v in zip(extras.keys, extras.values, strict=True)
+               if k is not None}
+    for module, extra in OPTIONAL.items():
+        assert module in ast.literal_eval(literal[extra]), module

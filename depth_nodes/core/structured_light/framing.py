@@ -123,6 +123,11 @@ class TagPairer:
                               'the projector driver publishing "pattern"?)'))
         return None, drops
 
+    @property
+    def held(self) -> int:
+        """Frames and tags waiting for their partner."""
+        return len(self._frames) + len(self._tags)
+
     def finish(self) -> list[Drop]:
         """The stream ended: what is still waiting, as drops; the pairer is empty after."""
         drops = []

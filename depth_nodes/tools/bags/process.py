@@ -10,7 +10,10 @@ run is deterministic.
 from __future__ import annotations
 
 import sys
+import tempfile
+import time
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -82,6 +85,22 @@ class ProcessReport:
     total: int = 0
     #: True when a SIGINT / SIGTERM stopped the run (the output holds what was done).
     interrupted: bool = False
+    #: The input topic whose messages count as frames (the most frequent one the graph
+    #: consumes), frames done and the run's wall-clock seconds.
+    frame_topic: str = ''
+    frames: int = 0
+    seconds: float = 0.0
+    workers: int = 1
+    engine: str = ''
+
+    def summary(self) -> str:
+        """One line: frames, messages, time, rate."""
+        rate = self.frames / self.seconds if self.seconds > 0 else 0.0
+        how = f'{self.workers} worker{"s" * (self.workers != 1)}'
+        if self.engine:
+            how += f' on {self.engine}'
+        return (f'processed {self.frames} frames ({self.done} of {self.total} messages) in '
+                f'{self.seconds:.1f} s: {rate:.2f} frames/s, {how}')
 
     def format(self) -> str:
         """A plain-text summary for the terminal."""
@@ -121,27 +140,36 @@ class ProcessReport:
 
 
 class _Progress:
-    """A one-line progress bar on a terminal; silent otherwise."""
+    """A one-line progress display on a terminal (frames done, frames/s, ETA); silent
+    otherwise (the summary line says it all at the end)."""
 
-    def __init__(self, total: int, stream: TextIO) -> None:
-        self.total = max(total, 1)
+    def __init__(self, total_frames: int, stream: TextIO) -> None:
+        self.total = max(total_frames, 1)
         self.stream = stream
-        self.enabled = stream.isatty() and total >= 20
-        self._shown = -1
+        self.enabled = stream.isatty()
+        self.start = time.monotonic()
+        self._shown = -1.0
 
-    def update(self, done: int) -> None:
+    def update(self, frames: int, *, force: bool = False) -> None:
         if not self.enabled:
             return
-        percent = done * 100 // self.total
-        if percent != self._shown:
-            self._shown = percent
-            bar = '#' * (percent // 4)
-            self.stream.write(f'\r[{bar:<25}] {percent:3d}% {done}/{self.total} messages')
-            self.stream.flush()
+        now = time.monotonic()
+        if not force and now - self._shown < 0.25:
+            return
+        self._shown = now
+        elapsed = now - self.start
+        rate = frames / elapsed if elapsed > 0 else 0.0
+        eta = f'{(self.total - frames) / rate:.0f} s' if rate > 0 else '?'
+        percent = min(frames * 100 // self.total, 100)
+        bar = '#' * (percent // 4)
+        self.stream.write(f'\r[{bar:<25}] {percent:3d}% {frames}/{self.total} frames, '
+                          f'{rate:.2f} frames/s, ETA {eta}   ')
+        self.stream.flush()
 
     def close(self) -> None:
         if self.enabled:
             self.stream.write('\n')
+            self.stream.flush()
 
 
 def select_nodes(config: GraphConfig, names: list[str] | None) -> GraphConfig:
@@ -170,6 +198,9 @@ def process_bag(
     overwrite: bool = False,
     progress: TextIO | None = None,
     image_transport: str | None = None,
+    workers: int = 1,
+    ray: bool = False,
+    ray_address: str | None = None,
 ) -> ProcessReport:
     """Run ``config``'s nodes over ``in_bag`` and write everything to ``out_bag``.
 
@@ -183,6 +214,10 @@ def process_bag(
         image_transport: How the nodes that read the bag's camera images take them
             (``raw``, ``compressed``, ``compressedDepth``); by default raw, or compressed
             where the bag holds only ``<topic>/compressed``.
+        workers: Graph copies running segments of the bag at once (see
+            :mod:`depth_nodes.tools.bags.parallel`); the output is the same as with one.
+        ray: Run the workers as Ray actors: on a local cluster started for the run, or on
+            the one at ``ray_address``.
 
     Returns:
         The counts of what went in, came out and was dropped.
@@ -209,7 +244,7 @@ def process_bag(
     try:
         nodes = create_nodes(config, params, context=context)
         report.nodes = [n.get_fully_qualified_name() for n in nodes]
-        routes, produced = _routes(nodes)
+        routes, produced = routes_of(nodes)
         report.shadowed = sorted(produced & set(reader.topics))
         switch = {} if image_transport is not None else _compressed_inputs(nodes, reader,
                                                                            produced)
@@ -221,20 +256,38 @@ def process_bag(
                 params = with_transport(params, [name], transport)
             report.transports = switch
             nodes = create_nodes(config, params, context=context)
-            routes, produced = _routes(nodes)
+            routes, produced = routes_of(nodes)
         _check_types(reader, routes)
         report.unfed = sorted(set(routes) - set(reader.topics) - produced)
         report.suggestions = _suggestions(report.unfed, config, reader,
                                           {n.get_fully_qualified_name(): n.get_parameter(
                                               'image_transport').value for n in nodes
                                            if n.has_parameter('image_transport')})
-        writer = BagWriter(out_bag, overwrite=overwrite)
+        report.frame_topic = _frame_topic(reader, routes, produced)
+        report.workers = workers
+        report.engine = ('Ray at ' + ray_address if ray_address else 'Ray') if ray else ''
+        started = time.monotonic()
+        engine = None
         try:
-            with writer:
-                _run(reader, writer, nodes, routes, produced, report, progress)
-        except BagError as exc:  # e.g. the input is corrupt part-way: no partial output
-            remove_bag(out_bag)
-            raise BagError(f'{exc}; {out_bag} not written') from None
+            if workers > 1 or ray:
+                from depth_nodes.tools.bags.parallel import LocalEngine, RayEngine
+
+                engine = RayEngine(workers, ray_address) if ray else LocalEngine(workers)
+            writer = BagWriter(out_bag, overwrite=overwrite)
+            try:
+                with writer:
+                    if engine is None:
+                        _run(reader, writer, nodes, routes, produced, report, progress)
+                    else:
+                        _run_parallel(reader, writer, nodes, config, params, engine, routes,
+                                      produced, report, progress, in_bag)
+            except BagError as exc:  # e.g. the input is corrupt part-way: no partial output
+                remove_bag(out_bag)
+                raise BagError(f'{exc}; {out_bag} not written') from None
+        finally:
+            report.seconds = time.monotonic() - started
+            if engine is not None:
+                engine.close()
         if not report.published and not report.interrupted:
             remove_bag(out_bag)  # a run that produced nothing leaves nothing behind
     finally:
@@ -246,7 +299,7 @@ def process_bag(
     return report
 
 
-def _routes(nodes: list[Any]) -> tuple[dict[str, list[Any]], set[str]]:
+def routes_of(nodes: list[Any]) -> tuple[dict[str, list[Any]], set[str]]:
     """Which node inputs each topic feeds, and the topics the nodes publish."""
     routes: dict[str, list[Any]] = {}
     produced: set[str] = set()
@@ -374,7 +427,7 @@ def _run(
 
     for node in nodes:
         node.sink = sink
-    bar = _Progress(reader.message_count, progress or sys.stderr)
+    bar = _Progress(reader.counts[report.frame_topic], progress or sys.stderr)
     report.total = reader.message_count
     for done, bag_msg in enumerate(reader.messages(), start=1):
         if stop_requested():  # SIGINT / SIGTERM: close the bag with what is done
@@ -392,7 +445,96 @@ def _run(
             report.consumed[bag_msg.topic] += 1
             for spec_in in subscribers:
                 spec_in.callback(msg)
-        bar.update(done)
+        report.frames += bag_msg.topic == report.frame_topic
+        bar.update(report.frames)
+    bar.update(report.frames, force=True)
     bar.close()
     for node in nodes:  # what the nodes still hold can never complete: count it
         node.finish_stream()
+
+
+def _frame_topic(reader: BagReader, routes: dict[str, list[Any]], produced: set[str]) -> str:
+    """The consumed input topic with the most messages: its messages count as frames."""
+    consumed = [t for t in routes if t in reader.topics and t not in produced]
+    return min(consumed, key=lambda t: (-reader.counts[t], t)) if consumed else ''
+
+
+def _run_parallel(
+    reader: BagReader,
+    writer: BagWriter,
+    nodes: list[Any],
+    config: GraphConfig,
+    params: dict[str, dict[str, Any]],
+    engine: Any,
+    routes: dict[str, list[Any]],
+    produced: set[str],
+    report: ProcessReport,
+    progress: TextIO | None,
+    in_bag: str | Path,
+) -> None:
+    """:func:`_run` with the graph on ``engine``'s workers, segment by segment (see
+    :mod:`depth_nodes.tools.bags.parallel`); the main process reads the bag, checks each
+    message against what the worker handled, and writes the stitched output."""
+    from depth_nodes.tools.bags.parallel import (
+        SEGMENTS_PER_WORKER,
+        SPARSE_MESSAGES,
+        SegmentJob,
+        segments,
+        stitch,
+    )
+
+    consumed = sorted(t for t in routes if t in reader.topics and t not in produced)
+    sparse = tuple(t for t in consumed if reader.counts[t] <= SPARSE_MESSAGES)
+    dense = tuple(t for t in consumed if t not in sparse)
+    start_ns, end_ns = reader.time_range
+    # workers on this machine hand their outputs over in files beside the output bag
+    spill = None if engine.remote else tempfile.TemporaryDirectory(
+        prefix='.depth-nodes-', dir=writer.path.parent)
+    jobs = [SegmentJob(str(Path(in_bag).resolve()), config, params, segment, sparse, dense,
+                       spill.name if spill else None)
+            for segment in segments(start_ns, end_ns, engine.workers * SEGMENTS_PER_WORKER)]
+    try:
+        _stitch_into(writer, reader, stitch(engine.map(jobs, stop_requested)), nodes,
+                     routes, produced, report, progress)
+    finally:
+        if spill is not None:
+            spill.cleanup()
+
+
+def _stitch_into(writer: BagWriter, reader: BagReader, stitched: Iterator[Any],
+                 nodes: list[Any], routes: dict[str, list[Any]], produced: set[str],
+                 report: ProcessReport, progress: TextIO | None) -> None:
+    """Write the input messages and the workers' stitched outputs in the bag's order."""
+    from depth_nodes.tools.bags.parallel import END
+
+    by_name = {node.get_fully_qualified_name(): node for node in nodes}
+    bar = _Progress(reader.counts[report.frame_topic], progress or sys.stderr)
+    report.total = reader.message_count
+    messages = enumerate(reader.messages())
+    last_stamp = 0
+    for item in stitched:
+        if item.index != END:
+            index, bag_msg = next(messages)
+            if index != item.index or (bag_msg.topic, bag_msg.timestamp) != item.seen:
+                raise BagError(f'a worker read message {item.index} as {item.seen}, this '
+                               f'process message {index} as {bag_msg.topic} at '
+                               f'{bag_msg.timestamp}: use --workers 1')
+            report.done = index + 1
+            last_stamp = bag_msg.timestamp
+            if bag_msg.topic not in produced:
+                writer.write(bag_msg.topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype,
+                             qos=reader.qos.get(bag_msg.topic, ()))
+                report.copied[bag_msg.topic] += 1
+            if routes.get(bag_msg.topic) and bag_msg.topic not in produced:
+                report.consumed[bag_msg.topic] += 1
+            report.frames += bag_msg.topic == report.frame_topic
+        for topic, msgtype, data in item.outputs:
+            writer.write(topic, data, last_stamp, msgtype)
+            report.published[topic] += 1
+        for name, reason, count in item.drops:
+            by_name[name].drops[reason] += count
+        bar.update(report.frames)
+    if report.done < report.total:
+        report.interrupted = True
+    bar.update(report.frames, force=True)
+    bar.close()

@@ -1,0 +1,268 @@
+"""`process` on several workers (spawned processes, Ray actors): the same output bag as one
+worker, message for message and byte for byte, the same counts and drops; the stitching
+rules on their own; progress, the summary line and the command line."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+from pathlib import Path
+from typing import Any
+
+import pytest
+from helpers import REPO, run_cli
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import CameraInfo, Image
+
+from depth_nodes.errors import BagError
+from depth_nodes.graph.description import GraphConfig, NodeSpec
+from depth_nodes.sim import StereoSimConfig
+from depth_nodes.sim.projector import ProjectorSimConfig
+from depth_nodes.sim.stereo import simulate_stereo
+from depth_nodes.tools.bags.generate import frame_messages
+from depth_nodes.tools.bags.io import BagReader, BagWriter, serialize
+from depth_nodes.tools.bags.parallel import (
+    END,
+    SegmentResult,
+    segments,
+    stitch,
+)
+from depth_nodes.tools.bags.process import ProcessReport, _Progress, process_bag
+from depth_nodes.tools.bags.structured_light import (
+    REFERENCE_FILE,
+    StructuredLightBagConfig,
+    write_structured_light_bag,
+)
+
+STEREO = StereoSimConfig(width=160, height=120, n_frames=8, seed=7, colour=True)
+#: The frame whose right image the stereo bag leaves out: a drop every run must count.
+MISSING_RIGHT = 5
+SL = StructuredLightBagConfig(
+    sim=ProjectorSimConfig(width=96, height=72, focal_px=84.0, projector_width=96,
+                           projector_height=72, projector_focal_px=75.0, seed=5),
+    steps=4, period=8.0, sequences=3, speckle_frames=1)
+SL_PLUGIN = 'depth_nodes.nodes.structured_light:StructuredLightNode'
+
+
+def _messages(bag: Path) -> list[tuple[str, int, bytes]]:
+    with BagReader(bag) as reader:
+        return [(m.topic, m.timestamp, m.data) for m in reader.messages()]
+
+
+def _counts(report: ProcessReport) -> tuple[Any, ...]:
+    drops = {node: dict(c) for node, c in report.drops.items() if c}
+    return (dict(report.published), dict(report.consumed), dict(report.copied), drops,
+            report.frames, report.done, report.total)
+
+
+@pytest.fixture(scope='module')
+def stereo_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Eight simulated frames; frame 5 lacks its right image."""
+    path = tmp_path_factory.mktemp('parallel') / 'stereo'
+    with BagWriter(path) as writer:
+        for frame in simulate_stereo(STEREO):
+            for topic, msg in frame_messages(frame):
+                if frame.index == MISSING_RIGHT and topic == '/stereo/right/image_raw':
+                    continue
+                writer.write(topic, msg, frame.stamp_ns)
+    return path
+
+
+@pytest.fixture(scope='module')
+def sl_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Three structured-light sequences whose projector camera_info is recorded once, at
+    the start (as a latched topic is): a worker that starts later must be primed with it."""
+    folder = tmp_path_factory.mktemp('parallel_sl')
+    write_structured_light_bag(folder / 'full', SL)
+    path = folder / 'latched'
+    seen_info = False
+    with BagReader(folder / 'full') as reader, BagWriter(path) as writer:
+        for m in reader.messages():
+            if m.topic == '/sl/projector/camera_info':
+                if seen_info:
+                    continue
+                seen_info = True
+            writer.write(m.topic, m.data, m.timestamp, m.msgtype)
+    (path / REFERENCE_FILE).write_bytes((folder / 'full' / REFERENCE_FILE).read_bytes())
+    return path
+
+
+def _sl_graph(bag: Path) -> GraphConfig:
+    return GraphConfig('sl', [
+        NodeSpec('structured_light', SL_PLUGIN, '/sl', {'phase_steps': 4, 'phase_period': 8.0},
+                 {'image': 'image_raw'}),
+        NodeSpec('speckle', SL_PLUGIN, '/sl/speckle',
+                 {'mode': 'speckle', 'speckle_reference': str(bag / REFERENCE_FILE),
+                  'speckle_window': 9},
+                 {'image': 'image_raw', 'projector/camera_info': '/sl/projector/camera_info'}),
+    ])
+
+
+def test_stereo_output_is_the_same_with_two_and_three_workers(
+        stereo_bag: Path, tmp_path: Path, ros_env: dict[str, str]) -> None:
+    one = process_bag(stereo_bag, tmp_path / 'one')
+    expected = _messages(tmp_path / 'one')
+    # the graph published for each of the 7 complete frames, and the lone left image of
+    # frame 5 was counted when the next frame's pair completed
+    assert one.published['/stereo/points2'] == STEREO.n_frames - 1
+    assert sum(sum(c.values()) for c in one.drops.values()) >= 1
+    for workers in (2, 3):
+        report = process_bag(stereo_bag, tmp_path / f'w{workers}', workers=workers)
+        assert _messages(tmp_path / f'w{workers}') == expected, workers
+        assert _counts(report) == _counts(one), workers
+        assert report.workers == workers
+
+
+def test_the_bag_files_are_identical_apart_from_their_names(
+        stereo_bag: Path, tmp_path: Path, ros_env: dict[str, str]) -> None:
+    process_bag(stereo_bag, tmp_path / 'a' / 'out')
+    process_bag(stereo_bag, tmp_path / 'b' / 'out', workers=2)
+    for name in ('out.mcap', 'metadata.yaml'):
+        assert (tmp_path / 'a' / 'out' / name).read_bytes() == \
+            (tmp_path / 'b' / 'out' / name).read_bytes(), name
+    assert not list(tmp_path.rglob('.depth-nodes-*'))  # hand-over files removed
+
+
+def test_structured_light_sequences_and_a_latched_calibration_survive_the_cuts(
+        sl_bag: Path, tmp_path: Path, ros_env: dict[str, str]) -> None:
+    graph = _sl_graph(sl_bag)
+    one = process_bag(sl_bag, tmp_path / 'one', config=graph)
+    assert one.published['/sl/depth'] == SL.sequences
+    assert sum(sum(c.values()) for c in one.drops.values()) == 0
+    # 3 workers cut the bag into 12 segments, most of them inside a sequence
+    report = process_bag(sl_bag, tmp_path / 'three', config=graph, workers=3)
+    assert _messages(tmp_path / 'three') == _messages(tmp_path / 'one')
+    assert _counts(report) == _counts(one)
+
+
+def test_ray_local_cluster_gives_the_same_bag(stereo_bag: Path, tmp_path: Path,
+                                             ros_env: dict[str, str]) -> None:
+    pytest.importorskip('ray', reason='the cluster extra is not installed')
+    one = process_bag(stereo_bag, tmp_path / 'one')
+    report = process_bag(stereo_bag, tmp_path / 'ray', workers=2, ray=True)
+    assert _messages(tmp_path / 'ray') == _messages(tmp_path / 'one')
+    assert _counts(report) == _counts(one)
+    assert report.engine == 'Ray'
+
+
+def test_segments_cover_the_bag_without_overlap() -> None:
+    parts = segments(100, 199, 4)
+    assert [p.start_ns for p in parts] == [None, 125, 150, 175]
+    assert [p.stop_ns for p in parts] == [125, 150, 175, None]
+    assert [p.last for p in parts] == [False, False, False, True]
+    assert len(segments(5, 6, 10)) == 2  # never more segments than nanoseconds
+    assert segments(5, 5, 3) == [segments(5, 5, 1)[0]]
+
+
+def _result(index: int, seen: int, own_end: int, idle: set[int],
+            outputs: dict[int, str] | None = None) -> SegmentResult:
+    """A worker's result over ``seen`` messages whose outputs are named strings."""
+    result = SegmentResult(index, [('/t', 1000 * index + i) for i in range(seen)], own_end,
+                           idle)
+    for local, name in (outputs or {}).items():
+        result.outputs[local] = [('/out', 'std_msgs/msg/String', name.encode())]
+    return result
+
+
+def test_stitch_hands_over_at_the_first_common_idle_point() -> None:
+    first = _result(0, 8, 5, {1, 6, 7}, {i: f'a{i}' for i in range(8)})
+    # the second worker starts at global 5 and is idle after its locals 0 (global 5:
+    # not idle in the first) and 2 (global 7: idle in both)
+    second = _result(1, 6, 6, {0, 2, 4}, {i: f'b{i}' for i in range(6)})
+    items = list(stitch(iter([first, second])))
+    assert [i.index for i in items] == list(range(11))
+    names = [o[2].decode() for i in items for o in i.outputs]
+    assert names == ['a0', 'a1', 'a2', 'a3', 'a4', 'a5', 'a6', 'a7', 'b3', 'b4', 'b5']
+
+
+def test_stitch_skips_a_segment_the_previous_worker_outlived() -> None:
+    first = _result(0, 12, 4, {11}, {11: 'a11'})
+    inside = _result(1, 3, 3, set())  # globals 4..6, inside the previous one's sequence
+    last = _result(2, 6, 6, {4, 5}, {5: 'c5'})  # globals 7..12
+    items = list(stitch(iter([first, inside, last])))
+    assert [i.index for i in items] == list(range(13))
+    assert [o[2] for i in items for o in i.outputs] == [b'a11', b'c5']
+
+
+def test_stitch_refuses_segments_without_a_common_idle_point() -> None:
+    first = _result(0, 6, 4, {5})
+    second = _result(1, 6, 6, {0, 3})  # global 4 and 7: never both idle
+    with pytest.raises(BagError, match='use --workers 1'):
+        list(stitch(iter([first, second])))
+
+
+def test_stitch_ends_with_the_last_segments_end_of_stream() -> None:
+    last = _result(0, 2, 2, set())
+    last.drops[END] = [('/n', 'stream_ended', 1)]
+    items = list(stitch(iter([last])))
+    assert items[-1].index == END
+    assert items[-1].drops == [('/n', 'stream_ended', 1)]
+
+
+def test_serialize_is_deterministic() -> None:
+    info = CameraInfo()
+    info.header.frame_id = 'abc'  # 3 characters: padding follows the string
+    info.distortion_model = 'plumb_bob'
+    image = Image(encoding='mono8', height=1, width=3, step=3, data=[1, 2, 3])
+    image.header.frame_id = 'left_camera_optical_frame'
+    for msg in (info, image):
+        first = serialize(msg)
+        assert all(serialize(msg) == first for _ in range(20))
+        # the same bytes as rclpy's, but for padding, which is zero
+        plain = serialize_message(msg)
+        assert len(plain) == len(first)
+        assert all(ours == 0 for ours, theirs in zip(first, plain, strict=True)
+                   if ours != theirs)
+        assert deserialize_message(first, type(msg)) == msg
+
+
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_shows_frames_rate_and_eta_on_a_terminal_only() -> None:
+    shown = _Tty()
+    bar = _Progress(200, shown)
+    bar.update(0, force=True)
+    bar.update(50, force=True)
+    bar.close()
+    assert '50/200 frames' in shown.getvalue()
+    assert 'frames/s' in shown.getvalue()
+    assert 'ETA' in shown.getvalue()
+    assert shown.getvalue().endswith('\n')
+    quiet = io.StringIO()
+    bar = _Progress(200, quiet)
+    bar.update(50, force=True)
+    bar.close()
+    assert quiet.getvalue() == ''
+
+
+def test_summary_line() -> None:
+    report = ProcessReport(done=1800, total=1800, frames=200, seconds=40.0, workers=2)
+    assert report.summary() == ('processed 200 frames (1800 of 1800 messages) in 40.0 s: '
+                                '5.00 frames/s, 2 workers')
+    ray = dataclasses.replace(report, workers=1, engine='Ray')
+    assert ray.summary().endswith('1 worker on Ray')
+
+
+def test_cli_prints_the_summary_and_refuses_bad_worker_options(
+        tmp_path: Path, ros_env: dict[str, str]) -> None:
+    done = run_cli(['process', str(REPO / 'bags' / 'stereo_qvga_color'), str(tmp_path / 'o'),
+                    '--workers', '2'], env=ros_env)
+    assert done.returncode == 0, done.stderr
+    assert 'processed 3 frames (27 of 27 messages)' in done.stdout
+    assert '2 workers' in done.stdout
+    bad = run_cli(['process', str(REPO / 'bags' / 'stereo_qvga_color'), str(tmp_path / 'b'),
+                   '--workers', '0'], env=ros_env)
+    assert bad.returncode == 1
+    assert bad.stderr.strip() == ('depth-nodes process: error: --workers must be at least 1, '
+                                  'got 0')
+    away = run_cli(['process', str(REPO / 'bags' / 'stereo_qvga_color'), str(tmp_path / 'r'),
+                    '--ray-address', '127.0.0.1:9'], env=ros_env)
+    assert away.returncode == 1
+    assert away.stderr.startswith('depth-nodes process: error: --ray-address 127.0.0.1:9: '
+                                  'nothing answers there')
+    assert len(away.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / 'b').exists()
+    assert not (tmp_path / 'r').exists()
