@@ -97,7 +97,12 @@ class SegmentResult:
 
 
 def segments(start_ns: int, end_ns: int, count: int) -> list[Segment]:
-    """``count`` segments of equal duration covering ``[start_ns, end_ns]``."""
+    """``count`` segments of equal duration covering ``[start_ns, end_ns]``.
+
+    (Measured on the 200-frame VGA bag with two workers: a short first and last segment,
+    or a big first one, were slower; so was nothing gained by running the workers nicer
+    than the main process.)
+    """
     span = end_ns - start_ns + 1
     count = max(1, min(count, span))
     cuts = [start_ns + span * k // count for k in range(1, count)]
@@ -322,8 +327,8 @@ _MMAP_FROM = 256 << 20
 def _keep_heap() -> None:
     """Let the worker reuse its heap for the frames' large buffers instead of mapping and
     unmapping them: glibc maps blocks of a few MB and returns the memory at once, and the
-    page faults of the next frame's buffers cost a worker a tenth of its time here (two
-    workers: 37.5 s for the 200-frame VGA bag before, see docs/speed.md). No-op off glibc."""
+    page faults of the next frame's buffers cost a worker a tenth of its time here (see
+    docs/speed.md, "Offline processing"). No-op off glibc."""
     import ctypes
 
     try:
@@ -355,6 +360,7 @@ class LocalEngine(Engine):
 
         cores = os.cpu_count() or 1
         self.workers = workers
+        self._futures: list[Any] = []
         self._pool = ProcessPoolExecutor(
             workers, mp_context=multiprocessing.get_context('spawn'),
             initializer=_init_worker, initargs=(max(1, cores // workers),))
@@ -367,6 +373,7 @@ class LocalEngine(Engine):
         while queue or pending:
             while queue and len(pending) < self.workers + 1 and not stop():
                 pending.append(self._pool.submit(run_segment, queue.pop(0)))
+                self._futures.append(pending[-1])
             if not pending:
                 return
             future = pending.pop(0)
@@ -379,13 +386,14 @@ class LocalEngine(Engine):
                         return
 
     def close(self) -> None:
-        processes = list(getattr(self._pool, '_processes', {}).values())
-        self._pool.shutdown(wait=False, cancel_futures=True)
-        for process in processes:  # a segment in progress is abandoned, not waited for
-            if process.is_alive():
-                process.terminate()
-        for process in processes:
-            process.join(10)
+        """Stop the workers: at once if a segment is still running (an interrupted run),
+        else after they exited cleanly."""
+        processes = list((getattr(self._pool, '_processes', None) or {}).values())
+        if any(not future.done() for future in self._futures):
+            for process in processes:  # a segment in progress is abandoned
+                if process.is_alive():
+                    process.terminate()
+        self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 class RayEngine(Engine):
