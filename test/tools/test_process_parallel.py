@@ -182,6 +182,13 @@ def test_stitch_skips_a_segment_the_previous_worker_outlived() -> None:
     items = list(stitch(iter([first, inside, last])))
     assert [i.index for i in items] == list(range(13))
     assert [o[2] for i in items for o in i.outputs] == [b'a11', b'c5']
+    # the last segment swallowed too: the first one ran to the end of the bag, and its
+    # end-of-stream drops close the output
+    first.drops[END] = [('/n', 'stream_ended', 2)]
+    last = _result(2, 3, 3, set())  # globals 7..9, the last three of the bag
+    items = list(stitch(iter([first, _result(1, 3, 3, set()), last])))
+    assert [i.index for i in items] == [*range(12), END]
+    assert items[-1].drops == [('/n', 'stream_ended', 2)]
 
 
 def test_stitch_refuses_segments_without_a_common_idle_point() -> None:

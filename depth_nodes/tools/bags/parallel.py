@@ -152,7 +152,6 @@ def run_segment(job: SegmentJob) -> SegmentResult:
 
             for node in nodes:
                 node.sink = sink
-            before = _drop_counts(nodes)
 
             def feed(bag_msg: Any) -> None:
                 subscribers = routes.get(bag_msg.topic)
@@ -193,15 +192,15 @@ def run_segment(job: SegmentJob) -> SegmentResult:
                         handover += 1
                         if handover >= HANDOVER_POINTS:
                             break
-            else:
-                if segment.last:  # what the graph still holds can never complete
-                    cause[0] = END
-                    for node in nodes:
-                        node.finish_stream()
-                    after = _drop_counts(nodes)
-                    result.drops[END] = [(n, r, c - before.get((n, r), 0))
-                                         for (n, r), c in after.items()
-                                         if c != before.get((n, r), 0)]
+            else:  # the end of the bag (the last segment, or a hand-over that ran
+                # into it): what the graph still holds can never complete
+                cause[0] = END
+                for node in nodes:
+                    node.finish_stream()
+                after = _drop_counts(nodes)
+                result.drops[END] = [(n, r, c - before.get((n, r), 0))
+                                     for (n, r), c in after.items()
+                                     if c != before.get((n, r), 0)]
             if result.own_end < 0:
                 result.own_end = len(result.seen)
     finally:
