@@ -103,10 +103,12 @@ def _bounded_reference(cost: np.ndarray, image: np.ndarray, paths: int, p1: int,
 
 
 @pytest.mark.parametrize(('paths', 'scale', 'overlap'), [(8, 0.0, 3), (8, 12.0, 5),
-                                                         (16, 7.5, 4), (4, 0.0, 0)])
+                                                         (16, 7.5, 4), (4, 0.0, 0),
+                                                         (8, 12.0, 19), (16, 0.0, 11)])
 def test_bounded_bands_match_their_reference(paths: int, scale: float, overlap: int) -> None:
     """With a budget too small for whole volumes, 6-row bands whose upward paths start
-    ``overlap`` rows below them: the total equals the reference of exactly that."""
+    ``overlap`` rows below them: the total equals the reference of exactly that (overlaps
+    of 11 and 19 rows pass below the band in pieces of OVERLAP_CHUNK = 8 rows)."""
     left, right = _pair(29, 31)
     params = SgmParams(disparity_range=7, census_width=5, census_height=5, P1=5, P2=60,
                        p2_adaptive_scale=scale, paths=paths, border_cost=0.0, band_rows=6,

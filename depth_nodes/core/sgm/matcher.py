@@ -54,6 +54,9 @@ F32 = NDArray[np.float32]
 #: Bands in flight the automatic band height is sized for (a downward sweep and two
 #: selections: two threads never wait for a free band). Each thread beyond two adds one.
 SIZED_SLOTS = 3
+#: Rows below a band whose costs a worker holds at once while its upward paths go
+#: through them (they are never all held: see ``_Frame._select``).
+OVERLAP_CHUNK = 8
 #: Row step of the frame statistic behind ``border_cost`` (:func:`cost.mean_best_cost`).
 BORDER_ROW_STEP = 4
 #: How a settings error names the matcher.
@@ -243,7 +246,7 @@ class SgmMatcher:
         whole = self.whole_volumes(h, w)
         slots = 1 if whole else min(len(bands), max(SIZED_SLOTS, threads + 1))
         rows = h if whole else max(b.rows for b in bands)
-        reach = h if whole else max(b.reach for b in bands)
+        chunk = min(OVERLAP_CHUNK, max(b.reach - b.rows for b in bands)) if not whole else 0
         shape = (h, w, n, p.paths, threads, census, tuple(bands), whole, slots)
         if shape != self._shape:
             def rings() -> tuple[tuple[Any, Any, Any], Any]:
@@ -253,7 +256,7 @@ class SgmMatcher:
                 'census': (np.empty((h, w), census), np.empty((h, w), census)),
                 'bands': bands,
                 'whole': whole,
-                'cost': [np.empty((reach, w, n), np.uint8) for _ in range(slots)],
+                'cost': [np.empty((rows, w, n), np.uint8) for _ in range(slots)],
                 'partial': [np.empty((rows, w, n), np.uint16) for _ in range(slots)],
                 'down': rings(),
                 'up': rings() if whole else None,
@@ -261,7 +264,8 @@ class SgmMatcher:
                              'ltr': np.empty((2, w, n), np.uint16),
                              'rtl': np.empty((2, w, n), np.uint16),
                              'keys': np.empty(w, np.uint32),
-                             'sample': np.empty((1, w, n), np.uint8)}
+                             'sample': np.empty((1, w, n), np.uint8),
+                             'below': np.empty((chunk, w, n), np.uint8)}
                             for _ in range(threads)],
                 'dxs': np.array([d[0] for d in dirs], np.int64),
                 'dys': np.array([d[1] for d in dirs], np.int64),
@@ -474,7 +478,7 @@ class _Frame:
             p, b = self.p, self.buf
             band = b['bands'][k]
             slot = k % len(b['cost'])
-            cost = self.inputs.rows(band.y0, b['cost'][slot][:band.reach])
+            cost = self.inputs.rows(band.y0, b['cost'][slot][:band.rows])
             if self.extrapolate:
                 fill_outside(cost, p.min_disparity, self.border_cost)
             (lb0, lb1, lb2), mbuf = b['down']
@@ -491,14 +495,30 @@ class _Frame:
                 cost, partial, upward = b['cost'][0][rows], b['partial'][0][rows], False
             else:
                 slot = k % len(b['cost'])
-                cost, partial = b['cost'][slot][:band.reach], b['partial'][slot]
+                cost, partial = b['cost'][slot][:band.rows], b['partial'][slot]
                 upward = p.paths not in SINGLE_PASS
             scratch = b['workers'][worker]
             (lb0, lb1, lb2), mbuf = scratch['rings']
-            band_select(cost, self.image, partial, band.y0, band.rows, b['dxs'], b['dys'],
-                        int(p.P1), int(p.P2), self.table, lb0, lb1, lb2, mbuf,
-                        int(p.min_disparity), float(p.uniqueness_ratio),
-                        SUBPIXEL_MODES[p.subpixel], scratch['total'], scratch['ltr'],
-                        scratch['rtl'], scratch['keys'], b['disparity'], b['disparity_right'],
-                        b['ratio'], self.total, self.keep_total, upward, self.extrapolate)
+
+            def select(cost: Any, y0: int, rows: int, ring0: int) -> None:
+                band_select(cost, self.image, partial, y0, rows, b['dxs'], b['dys'],
+                            int(p.P1), int(p.P2), self.table, lb0, lb1, lb2, mbuf,
+                            int(p.min_disparity), float(p.uniqueness_ratio),
+                            SUBPIXEL_MODES[p.subpixel], scratch['total'], scratch['ltr'],
+                            scratch['rtl'], scratch['keys'], b['disparity'],
+                            b['disparity_right'], b['ratio'], self.total, self.keep_total,
+                            upward, self.extrapolate, ring0)
+
+            swept = 0
+            if upward and band.reach > band.rows:  # the rows below, a few at a time,
+                # bottom up: their paths only
+                below = scratch['below']
+                for end in range(band.y0 + band.reach, band.y0 + band.rows, -len(below)):
+                    start = max(band.y0 + band.rows, end - len(below))
+                    part = self.inputs.rows(start, below[:end - start])
+                    if self.extrapolate:
+                        fill_outside(part, p.min_disparity, self.border_cost)
+                    select(part, start, 0, swept)
+                    swept += end - start
+            select(cost, band.y0, band.rows, swept)
         return run

@@ -199,7 +199,7 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
                 min_disparity: int, uniqueness: float, subpixel: int, total: U16,
                 left_to_right: U16, right_to_left: U16, keys: NDArray[np.uint32],
                 disparity: F32, disparity_right: F32, ratio: F32, total_out: U16,
-                store_total: bool, upward: bool, extrapolate: bool) -> None:
+                store_total: bool, upward: bool, extrapolate: bool, ring0: int = 0) -> None:
     """The rest of SGM for one band of rows, bottom up, on one thread.
 
     For each row: (1) the upward paths (the downward ones mirrored) are added to the
@@ -211,6 +211,9 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
     The upward paths start at the last row of ``cost``: with R > ``rows`` the R - rows
     rows below the band are swept first (their paths only), so that the paths reaching
     the band carry that much context (exact when the band reaches the image bottom).
+    ``ring0`` > 0 continues paths already swept through ``ring0`` rows below (by calls
+    with ``rows`` 0, whose ring buffers this call's are): the rows below need not be held
+    at once.
 
     Args:
         cost: (R, W, D) uint8 cost of rows y0 .. y0 + R - 1.
@@ -235,6 +238,7 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
         store_total: Write the full sum into ``total_out``.
         upward: Run the upward directions (False for the
             :data:`~depth_nodes.core.sgm.aggregate.SINGLE_PASS` path counts).
+        ring0: Rows the upward paths already went through (see above).
         extrapolate: Select the left disparity over every disparity, also those whose
             right pixel is outside the image (their cells then hold a neutral cost, see
             ``cost.fill_outside``): the left border strip takes the disparity its
@@ -247,7 +251,7 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
         for i in range(r_all if upward else rows):
             b = (r_all if upward else rows) - 1 - i  # band-relative row, bottom up
             y = y0 + b
-            ring = i % 3
+            ring = (ring0 + i) % 3
             cur_ring = _ring(lb0, lb1, lb2, ring)
             in_band = b < rows
             for x in range(w):  # (1) upward paths + downward sum
@@ -260,10 +264,10 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
                     step = dys[j]
                     xp = x + dxs[j]
                     cur = cur_ring[j, x]
-                    if i - step < 0 or xp < 0 or xp >= w:
+                    if ring0 + i - step < 0 or xp < 0 or xp >= w:
                         best = path_start(cost[b, x], cur)
                     else:
-                        pring = (i - step) % 3
+                        pring = (ring0 + i - step) % 3
                         p2e = table_p2(p2, p2_table, image[y, x], image[y + step, xp])
                         best = path_step(cost[b, x], _ring(lb0, lb1, lb2, pring)[j, xp],
                                          int(mbuf[j, pring, xp]), p1, p2e, cur)
