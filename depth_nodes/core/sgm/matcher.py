@@ -329,6 +329,7 @@ class SgmMatcher:
                        keep_total)
         run_tasks(frame.tasks(), threads)
         self.border_cost = frame.border_cost
+        del frame, inputs  # the per-frame intensities, before the filters' temporaries
         if p.median_filter:
             _median3(b['disparity'], p.min_disparity)
         check_disparity(b['disparity'], b['disparity_right'], max_diff=p.disp12_max_diff,
