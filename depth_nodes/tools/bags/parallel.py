@@ -427,7 +427,7 @@ class RayEngine(Engine):
                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'OFF'}
         actor = ray.remote(num_cpus=1)(_SegmentActor)
         self._actors: list[Any] = [actor.options(runtime_env={'env_vars': env}).remote()
-                        for _ in range(workers)]
+                                   for _ in range(workers)]
 
     def map(self, jobs: list[SegmentJob], stop: Callable[[], bool]) -> Iterator[SegmentResult]:
         ray = self._ray
