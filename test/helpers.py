@@ -104,3 +104,24 @@ class Lazy:
         if self._value is None:
             self._value = self._make()
         return getattr(self._value, name)
+
+
+#: The structured-light node's plugin name.
+SL_PLUGIN = 'depth_nodes.nodes.structured_light:StructuredLightNode'
+
+
+def small_sl_graph(bag: Path) -> Any:
+    """The structured-light graph for the small simulated bags of the tests (4 phase
+    steps, period 8, and the speckle node with the bag's reference): a GraphConfig,
+    imported here so that this module stays free of ROS."""
+    from depth_nodes.graph.description import GraphConfig, NodeSpec
+    from depth_nodes.tools.bags.structured_light import REFERENCE_FILE
+
+    return GraphConfig('sl', [
+        NodeSpec('structured_light', SL_PLUGIN, '/sl', {'phase_steps': 4, 'phase_period': 8.0},
+                 {'image': 'image_raw'}),
+        NodeSpec('speckle', SL_PLUGIN, '/sl/speckle',
+                 {'mode': 'speckle', 'speckle_reference': str(bag / REFERENCE_FILE),
+                  'speckle_window': 9},
+                 {'image': 'image_raw', 'projector/camera_info': '/sl/projector/camera_info'}),
+    ])

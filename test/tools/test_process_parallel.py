@@ -10,12 +10,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers import REPO, run_cli
+from helpers import REPO, run_cli, small_sl_graph
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.errors import BagError
-from depth_nodes.graph.description import GraphConfig, NodeSpec
 from depth_nodes.sim import StereoSimConfig
 from depth_nodes.sim.projector import ProjectorSimConfig
 from depth_nodes.sim.stereo import simulate_stereo
@@ -41,7 +40,6 @@ SL = StructuredLightBagConfig(
     sim=ProjectorSimConfig(width=96, height=72, focal_px=84.0, projector_width=96,
                            projector_height=72, projector_focal_px=75.0, seed=5),
     steps=4, period=8.0, sequences=3, speckle_frames=1)
-SL_PLUGIN = 'depth_nodes.nodes.structured_light:StructuredLightNode'
 
 
 def _messages(bag: Path) -> list[tuple[str, int, bytes]]:
@@ -87,17 +85,6 @@ def sl_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def _sl_graph(bag: Path) -> GraphConfig:
-    return GraphConfig('sl', [
-        NodeSpec('structured_light', SL_PLUGIN, '/sl', {'phase_steps': 4, 'phase_period': 8.0},
-                 {'image': 'image_raw'}),
-        NodeSpec('speckle', SL_PLUGIN, '/sl/speckle',
-                 {'mode': 'speckle', 'speckle_reference': str(bag / REFERENCE_FILE),
-                  'speckle_window': 9},
-                 {'image': 'image_raw', 'projector/camera_info': '/sl/projector/camera_info'}),
-    ])
-
-
 def test_stereo_output_is_the_same_with_two_and_three_workers(
         stereo_bag: Path, tmp_path: Path, ros_env: dict[str, str]) -> None:
     one = process_bag(stereo_bag, tmp_path / 'one')
@@ -125,7 +112,7 @@ def test_the_bag_files_are_identical_apart_from_their_names(
 
 def test_structured_light_sequences_and_a_latched_calibration_survive_the_cuts(
         sl_bag: Path, tmp_path: Path, ros_env: dict[str, str]) -> None:
-    graph = _sl_graph(sl_bag)
+    graph = small_sl_graph(sl_bag)
     one = process_bag(sl_bag, tmp_path / 'one', config=graph)
     assert one.published['/sl/depth'] == SL.sequences
     assert sum(sum(c.values()) for c in one.drops.values()) == 0
@@ -137,7 +124,6 @@ def test_structured_light_sequences_and_a_latched_calibration_survive_the_cuts(
 
 def test_ray_local_cluster_gives_the_same_bag(stereo_bag: Path, tmp_path: Path,
                                              ros_env: dict[str, str]) -> None:
-    pytest.importorskip('ray', reason='the cluster extra is not installed')
     one = process_bag(stereo_bag, tmp_path / 'one')
     report = process_bag(stereo_bag, tmp_path / 'ray', workers=2, ray=True)
     assert _messages(tmp_path / 'ray') == _messages(tmp_path / 'one')

@@ -8,17 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import REPO
+from helpers import REPO, small_sl_graph
 
 from depth_nodes.errors import BagError
-from depth_nodes.graph.description import GraphConfig, NodeSpec
 from depth_nodes.ros.image import image_to_array
 from depth_nodes.sim.projector import ProjectorSimConfig
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.bags.process import process_bag
 from depth_nodes.tools.bags.structured_light import (
     PRESETS,
-    REFERENCE_FILE,
     StructuredLightBagConfig,
     read_structured_light_bag,
     write_structured_light_bag,
@@ -33,7 +31,6 @@ SMALL = StructuredLightBagConfig(
     sim=ProjectorSimConfig(width=96, height=72, focal_px=84.0, projector_width=96,
                            projector_height=72, projector_focal_px=75.0, seed=5),
     steps=4, period=8.0, sequences=2, speckle_frames=1)
-PLUGIN = 'depth_nodes.nodes.structured_light:StructuredLightNode'
 
 
 @pytest.fixture(scope='module')
@@ -67,15 +64,7 @@ def test_topics_stamps_and_tags(small_bag: Path) -> None:
 
 
 def test_process_runs_the_node_on_every_sequence(small_bag: Path, tmp_path: Path) -> None:
-    graph = GraphConfig('sl', [
-        NodeSpec('structured_light', PLUGIN, '/sl', {'phase_steps': 4, 'phase_period': 8.0},
-                 {'image': 'image_raw'}),
-        NodeSpec('speckle', PLUGIN, '/sl/speckle',
-                 {'mode': 'speckle', 'speckle_reference': str(small_bag / REFERENCE_FILE),
-                  'speckle_window': 9},
-                 {'image': 'image_raw', 'projector/camera_info': '/sl/projector/camera_info'}),
-    ])
-    report = process_bag(small_bag, tmp_path / 'out', config=graph)
+    report = process_bag(small_bag, tmp_path / 'out', config=small_sl_graph(small_bag))
     assert report.published['/sl/depth'] == 2
     assert report.published['/sl/speckle/depth'] == 1
     assert sum(sum(c.values()) for c in report.drops.values()) == 0
