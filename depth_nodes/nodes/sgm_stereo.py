@@ -77,7 +77,8 @@ from depth_nodes.ros.workers import OrderedWorkers, use_threads
 CENSUS_ONLY = ('census_width', 'census_height', 'census_weight', 'intensity_weight',
                'intensity_cost', 'intensity_truncation', 'p2_adaptive_scale', 'paths',
                'subpixel', 'median_filter', 'match_brightness', 'border_cost',
-               'border_extrapolation', 'band_rows', 'band_overlap', 'memory_mb')
+               'border_extrapolation', 'band_rows', 'band_overlap', 'memory_mb',
+               'disparity_search', 'search_margin')
 _ODD = Rule('', odd=True)
 
 
@@ -203,7 +204,8 @@ def sgm_params(values: Mapping[str, Any]) -> SgmParams:
         disp12_max_diff=lr_threshold(values['disp12_max_diff']),
         speckle_size=values['speckle_size'],
         speckle_range=values['speckle_range'], band_rows=values['band_rows'],
-        band_overlap=values['band_overlap'], memory_mb=values['memory_mb'])
+        band_overlap=values['band_overlap'], memory_mb=values['memory_mb'],
+        disparity_search=values['disparity_search'], search_margin=values['search_margin'])
 
 
 def opencv_settings(values: Mapping[str, Any]) -> SgbmSettings:

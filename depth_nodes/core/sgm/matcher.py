@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from depth_nodes.core.cross_check import SPECKLE_SIZE, remove_speckles
 from depth_nodes.core.settings import check_settings, setting
+from depth_nodes.core.sgm import ranged
 from depth_nodes.core.sgm.aggregate import (
     SINGLE_PASS,
     VERTICAL_DIRECTIONS,
@@ -40,6 +41,7 @@ from depth_nodes.core.sgm.check import check_disparity
 from depth_nodes.core.sgm.cost import (
     OUT_OF_RANGE_COST,
     CostInputs,
+    _full_range_columns,
     census_dtype,
     cost_inputs,
     fill_outside,
@@ -59,6 +61,8 @@ SIZED_SLOTS = 3
 OVERLAP_CHUNK = 8
 #: Row step of the frame statistic behind ``border_cost`` (:func:`cost.mean_best_cost`).
 BORDER_ROW_STEP = 4
+#: disparity_search: every disparity, or windows from a half-resolution pass (ranged.py).
+SEARCH_MODES = ('full', 'coarse')
 #: How a settings error names the matcher.
 LABEL = 'SGM parameter'
 #: The largest P2 (with 4 paths; fewer with more: the 16-bit sum of the paths).
@@ -136,6 +140,14 @@ class SgmParams:
                                '(exact) when they fit, else bands in flight sized to it '
                                '(about constant whatever the disparity range; 0: always '
                                'bands)', low=0.0, high=1e6)
+    disparity_search: str = setting('full', 'full: every disparity at every pixel; coarse: '
+                                    'a half-resolution pass first, then each pixel searches '
+                                    'only the disparities its neighbourhood found there '
+                                    '(tSGM; falls back to full for a frame whose windows do '
+                                    'not fit memory_mb)', choices=SEARCH_MODES)
+    search_margin: float = setting(8.0, 'coarse search: px added either side of the '
+                                   "disparities a pixel's coarse neighbourhood found",
+                                   low=0.0, high=4096.0)
 
     def _bad(self, name: str, why: str) -> ArgumentError:
         return ArgumentError(f'{LABEL} {name}={getattr(self, name)!r}: {why}')
@@ -210,6 +222,13 @@ class SgmMatcher:
         self.allocations = 0
         #: The out-of-image cost the last match used (0: none, extrapolation off).
         self.border_cost = 0
+        #: Coarse search: frames matched with the full search because their windows did
+        #: not fit ``memory_mb``; the last frame's cells as a fraction of the full volume.
+        self.fallbacks = 0
+        self.search_cells = 1.0
+        self._coarse: SgmMatcher | None = None
+        self._ranged_shape: tuple[object, ...] = ()
+        self._ranged_buf: dict[str, Any] = {}
 
     def set_params(self, params: SgmParams) -> None:
         """Use ``params`` from the next frame on (validated now)."""
@@ -267,19 +286,20 @@ class SgmMatcher:
                              'sample': np.empty((1, w, n), np.uint8),
                              'below': np.empty((chunk, w, n), np.uint8)}
                             for _ in range(threads)],
-                'dxs': np.array([d[0] for d in dirs], np.int64),
-                'dys': np.array([d[1] for d in dirs], np.int64),
-                'disparity': np.empty((h, w), np.float32),
-                'disparity_right': np.empty((h, w), np.float32),
-                'ratio': np.empty((h, w), np.float32),
+                **_outputs(h, w, dirs),
             }
             self._shape = shape
             self.allocations += 1
+        self._update_table()
+        return self._buf
+
+    def _update_table(self) -> None:
+        """The adaptive-P2 table of the current settings."""
+        p = self.params
         table_key = (p.P1, p.P2, p.p2_adaptive_scale)
         if table_key != self._table_key:
             self._table = p2_table(*table_key)
             self._table_key = table_key
-        return self._buf
 
     @property
     def workspace_bytes(self) -> int:
@@ -315,13 +335,13 @@ class SgmMatcher:
         h, w = left.shape
         p = self.params.check_width(w)  # the rest was checked when the params were set
         threads = max(1, numba.get_num_threads())
+        if p.disparity_search == 'coarse' and not keep_total:
+            b = self._ranged_match(left, right, p, threads)
+            if b is not None:
+                return self._finish(b, p)
+            self.fallbacks += 1
         b = self._buffers(h, w, threads)
-        inputs = cost_inputs(
-            left, right, min_disparity=p.min_disparity, disparity_range=p.disparity_range,
-            census_window=(p.census_height, p.census_width), census_weight=p.census_weight,
-            intensity_weight=p.intensity_weight, intensity_cost=p.intensity_cost,
-            intensity_truncation=p.intensity_truncation, match_brightness=p.match_brightness,
-            census_buffers=b['census'])
+        inputs = _cost_inputs(left, right, p, b['census'])
         if keep_total and self._total.shape != (h, w, p.disparity_range):
             self._total = np.empty((h, w, p.disparity_range), np.uint16)
         self._kept_total = keep_total
@@ -330,6 +350,10 @@ class SgmMatcher:
         run_tasks(frame.tasks(), threads)
         self.border_cost = frame.border_cost
         del frame, inputs  # the per-frame intensities, before the filters' temporaries
+        return self._finish(b, p)
+
+    def _finish(self, b: dict[str, Any], p: SgmParams) -> SgmResult:
+        """The filters after the selection (either search), on ``b``'s outputs."""
         if p.median_filter:
             _median3(b['disparity'], p.min_disparity)
         check_disparity(b['disparity'], b['disparity_right'], max_diff=p.disp12_max_diff,
@@ -339,6 +363,100 @@ class SgmMatcher:
                                        max_diff=p.speckle_range)
             b['disparity'][speckles] = np.nan
         return SgmResult(b['disparity'], b['disparity_right'], b['ratio'])
+
+    def _ranged_match(self, left: NDArray[Any], right: NDArray[Any], p: SgmParams,
+                      threads: int) -> dict[str, Any] | None:
+        """The coarse-to-fine search (``ranged.py``): a half-resolution full match, then
+        the full-resolution one over each pixel's window. Returns the buffers holding the
+        selection, or None when the windows' volumes exceed ``memory_mb``."""
+        h, w = left.shape
+        ch, cw = ranged.coarse_size(h, w)
+        c_min, c_range = ranged.coarse_window(p.min_disparity, p.disparity_range)
+        coarse_params = replace(
+            p, disparity_search='full', min_disparity=c_min,
+            disparity_range=min(c_range, cw - 1), speckle_size=p.speckle_size // 4,
+            speckle_range=p.speckle_range / 2, median_filter=False, band_rows=0)
+        if self._coarse is None:
+            self._coarse = SgmMatcher(coarse_params)
+        elif self._coarse.params != coarse_params:
+            self._coarse.set_params(coarse_params)
+        coarse = self._coarse.match(cv2.resize(left, (cw, ch), interpolation=cv2.INTER_AREA),
+                                    cv2.resize(right, (cw, ch), interpolation=cv2.INTER_AREA))
+        lo, wid = ranged.search_ranges(coarse.disparity, (h, w),
+                                       min_disparity=p.min_disparity,
+                                       disparity_range=p.disparity_range,
+                                       margin=p.search_margin)
+        return self._match_windows(left, right, p, threads, lo, wid)
+
+    def match_windows(self, left: NDArray[Any], right: NDArray[Any], lo: NDArray[np.int32],
+                      wid: NDArray[np.int32]) -> SgmResult | None:
+        """Match over given windows, as the coarse search's second pass does: pixel (y,
+        x) searches disparity indices lo[y, x] .. lo[y, x] + wid[y, x] - 1 only (tests;
+        ``disparity_search`` is ignored). None when the windows exceed ``memory_mb``."""
+        h, w = left.shape
+        p = self.params.check_width(w)
+        if lo.shape != (h, w) or wid.shape != (h, w) or (wid < 1).any() or (lo < 0).any() \
+                or (lo + wid > p.disparity_range).any():
+            raise ArgumentError('windows must be (H, W), non-empty and inside the range')
+        b = self._match_windows(left, right, p, max(1, numba.get_num_threads()),
+                                np.ascontiguousarray(lo, np.int32),
+                                np.ascontiguousarray(wid, np.int32))
+        return None if b is None else self._finish(b, p)
+
+    def _match_windows(self, left: NDArray[Any], right: NDArray[Any], p: SgmParams,
+                       threads: int, lo: NDArray[np.int32],
+                       wid: NDArray[np.int32]) -> dict[str, Any] | None:
+        h, w = left.shape
+        base = ranged.flat_offsets(wid)
+        cells = int(base[-1])
+        if ranged.CELL_BYTES * cells > p.memory_mb * 1e6:
+            return None
+        self.search_cells = cells / (h * w * p.disparity_range)
+        b = self._ranged_buffers(h, w, threads, cells)
+        inputs = _cost_inputs(left, right, p, b['census'])
+        frame = _RangedFrame(self, p, b, inputs, np.ascontiguousarray(left, dtype=np.float32),
+                             lo, wid, base)
+        run_tasks(frame.tasks(), threads)
+        self.border_cost = frame.border_cost
+        return b
+
+    def _ranged_buffers(self, h: int, w: int, threads: int, cells: int) -> dict[str, Any]:
+        """The coarse-to-fine search's buffers; the flat volumes grow to the largest
+        frame's windows (by a quarter more, so that they seldom grow again)."""
+        p = self.params
+        n = p.disparity_range
+        dirs = VERTICAL_DIRECTIONS[p.paths]
+        census = census_dtype((p.census_height, p.census_width))
+        shape = (h, w, n, p.paths, threads, census)
+        if shape != self._ranged_shape:
+            def rings() -> tuple[tuple[Any, Any, Any], Any]:
+                return new_line_buffers(len(dirs), w, n)
+
+            self._ranged_buf = {
+                'census': (np.empty((h, w), census), np.empty((h, w), census)),
+                'bands': band_layout(h, -(-h // MIN_BANDS), 0),
+                'cost': np.empty(0, np.uint8),
+                'partial': np.empty(0, np.uint16),
+                'down': rings(),
+                'up': rings(),
+                'workers': [{'total': np.empty((w, n), np.uint16),
+                             'ltr': np.empty((w, n), np.uint16),
+                             'rtl': np.empty((w, n), np.uint16),
+                             'lines': np.empty((2, n + 2), np.uint16),
+                             'keys': np.empty(w, np.uint32)} for _ in range(threads)],
+                **_outputs(h, w, dirs),
+            }
+            self._ranged_shape = shape
+            self.allocations += 1
+        b = self._ranged_buf
+        if b['cost'].size < cells:
+            grown = cells + cells // 4
+            b['cost'] = b['partial'] = None  # let the old ones go before the new ones
+            b['cost'] = np.empty(grown, np.uint8)
+            b['partial'] = np.empty(grown, np.uint16)
+            self.allocations += 1
+        self._update_table()
+        return b
 
     @property
     def total(self) -> NDArray[np.uint16]:
@@ -352,6 +470,26 @@ class SgmMatcher:
             raise RuntimeError('the last match kept no total: call match(..., '
                                'keep_total=True)')
         return self._total
+
+
+def _cost_inputs(left: NDArray[Any], right: NDArray[Any], p: SgmParams,
+                 census: tuple[Any, Any]) -> CostInputs:
+    """The frame's cost inputs with the settings ``p``, into the census buffers."""
+    return cost_inputs(
+        left, right, min_disparity=p.min_disparity, disparity_range=p.disparity_range,
+        census_window=(p.census_height, p.census_width), census_weight=p.census_weight,
+        intensity_weight=p.intensity_weight, intensity_cost=p.intensity_cost,
+        intensity_truncation=p.intensity_truncation, match_brightness=p.match_brightness,
+        census_buffers=census)
+
+
+def _outputs(h: int, w: int, dirs: tuple[tuple[int, int], ...]) -> dict[str, Any]:
+    """The buffers both searches share: the vertical directions' steps, the outputs."""
+    return {'dxs': np.array([d[0] for d in dirs], np.int64),
+            'dys': np.array([d[1] for d in dirs], np.int64),
+            'disparity': np.empty((h, w), np.float32),
+            'disparity_right': np.empty((h, w), np.float32),
+            'ratio': np.empty((h, w), np.float32)}
 
 
 def _median3(disparity: F32, min_disparity: int) -> None:
@@ -522,4 +660,96 @@ class _Frame:
                     select(part, start, 0, swept)
                     swept += end - start
             select(cost, band.y0, band.rows, swept)
+        return run
+
+
+class _RangedFrame:
+    """One coarse-to-fine match as tasks (``ranged.py``): the whole-volume order of
+    :class:`_Frame` on the windows' flat volumes. Per band its costs; once every band's
+    are there, the border statistic (its rows' minima over the windows) and the
+    out-of-image cells; then the downward chain from the top and the upward one from the
+    bottom (none with a single-pass path count), and each band's selection once both
+    have passed it."""
+
+    def __init__(self, matcher: SgmMatcher, params: SgmParams, buffers: dict[str, Any],
+                 inputs: CostInputs, image: F32, lo: NDArray[np.int32],
+                 wid: NDArray[np.int32], base: NDArray[np.int64]) -> None:
+        self.p = params
+        self.buf = buffers
+        self.inputs = inputs
+        self.image = image
+        self.lo, self.wid, self.base = lo, wid, base
+        self.table = matcher._table
+        self.extrapolate = params.border_cost > 0
+        self.border_cost = 0
+        self.h, self.w = image.shape
+        bands = len(buffers['bands'])
+        self.band_locks = [threading.Lock() for _ in range(bands)]
+        self.swept = [False] * bands
+
+    def tasks(self) -> list[Task]:
+        """The frame's tasks, dependencies first."""
+        bands = len(self.buf['bands'])
+        tasks = [Task(self._cost(k), (), 2 * min(k, bands - 1 - k)) for k in range(bands)]
+        cost = list(range(bands))
+        if self.extrapolate:
+            tasks.append(Task(lambda worker: self._border(), cost))
+            cost = [bands] * bands
+        down = [len(tasks) + k for k in range(bands)]
+        tasks += [Task(self._sweep(k, upward=False), [cost[k], *down[k - 1:k]], 2 * k + 1)
+                  for k in range(bands)]
+        up: list[int] = []
+        if self.p.paths not in SINGLE_PASS:
+            up = [len(tasks) + bands - 1 - k for k in range(bands)]  # added bottom first
+            tasks += [Task(self._sweep(k, upward=True), [cost[k], *up[k + 1:k + 2]],
+                           2 * (bands - 1 - k) + 1) for k in reversed(range(bands))]
+        tasks += [Task(self._select(k), [down[k], *up[k:k + 1]], 2 * bands + k)
+                  for k in range(bands)]
+        return tasks
+
+    def _cost(self, k: int) -> Any:
+        def run(worker: int) -> None:
+            band = self.buf['bands'][k]
+            ranged.ranged_costs(self.inputs, band.y0, band.rows, self.lo, self.wid,
+                                self.base, self.buf['cost'])
+        return run
+
+    def _border(self) -> None:
+        """:class:`_Frame`'s border statistic from the windows' costs, then the
+        out-of-image cells of every window set to it."""
+        p = self.p
+        n, h, w = p.disparity_range, self.h, self.w
+        x_lo, x_hi = _full_range_columns(w, n, p.min_disparity)
+        total = ranged.ranged_best_cost_sum(self.buf['cost'], self.lo, self.wid, self.base,
+                                            x_lo, x_hi, BORDER_ROW_STEP)
+        count = mean_best_count(h, w, n, p.min_disparity, BORDER_ROW_STEP)
+        self.border_cost = min(254, max(1, round(p.border_cost * total / count)))
+        ranged.ranged_fill_outside(self.buf['cost'], self.lo, self.wid, self.base, 0, h,
+                                   p.min_disparity, n, self.border_cost)
+
+    def _sweep(self, k: int, *, upward: bool) -> Any:
+        def run(worker: int) -> None:
+            p, b = self.p, self.buf
+            band = b['bands'][k]
+            (lb0, lb1, lb2), mbuf = b['up' if upward else 'down']
+            with self.band_locks[k]:
+                ranged.ranged_sweep(b['cost'], self.base, self.lo, self.wid, self.image,
+                                    band.y0, band.rows, b['dxs'], b['dys'], int(p.P1),
+                                    int(p.P2), self.table, lb0, lb1, lb2, mbuf,
+                                    b['partial'], upward, self.swept[k])
+                self.swept[k] = True
+        return run
+
+    def _select(self, k: int) -> Any:
+        def run(worker: int) -> None:
+            p, b = self.p, self.buf
+            band = b['bands'][k]
+            s = b['workers'][worker]
+            ranged.ranged_select(b['cost'], self.base, self.lo, self.wid, self.image,
+                                 b['partial'], band.y0, band.rows, int(p.P1), int(p.P2),
+                                 self.table, int(p.disparity_range), int(p.min_disparity),
+                                 float(p.uniqueness_ratio), SUBPIXEL_MODES[p.subpixel],
+                                 s['total'], s['ltr'], s['rtl'], s['lines'], s['keys'],
+                                 b['disparity'], b['disparity_right'], b['ratio'],
+                                 self.extrapolate)
         return run

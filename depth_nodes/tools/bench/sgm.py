@@ -146,6 +146,9 @@ class SgmBench:
     busy: int = 0
     #: Times (ms) with ``busy`` cores taken: ours on ``threads`` and on one thread, OpenCV.
     busy_ms: dict[str, float] | None = None
+    #: Ours with ``disparity_search: coarse`` (ms), and the share of the cells it searched.
+    coarse_ms: float = 0.0
+    coarse_cells: float = 1.0
 
     def format(self) -> str:
         """The printed report."""
@@ -163,6 +166,11 @@ class SgmBench:
             f'ours / MODE_SGBM = {self.ours_ms / self.sgbm_ms:5.2f}',
             f'  matcher buffers {self.workspace_mb:.0f} MB (reused every frame)',
         ]
+        if self.coarse_ms:
+            lines.insert(4, f'  census SGM, coarse search    {self.coarse_ms:8.1f} ms   '
+                         f'ours / MODE_SGBM = {self.coarse_ms / self.sgbm_ms:5.2f}   '
+                         f'(disparity_search: coarse; {100 * self.coarse_cells:.0f} % of the '
+                         'cells searched)')
         if self.peak_mb:
             lines.append('  peak memory of a fresh process matching one frame (RSS): ours '
                          f'{self.peak_mb["ours"]:.0f} MB, MODE_HH {self.peak_mb["hh"]:.0f} '
@@ -363,6 +371,8 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
     left, right = bench_pair(w, h)
     threads = numba.get_num_threads()
     matcher = SgmMatcher(SgmParams(disparity_range=disparities, paths=paths))
+    coarse = SgmMatcher(SgmParams(disparity_range=disparities, paths=paths,
+                                  disparity_search='coarse'))
 
     def one_thread() -> None:
         numba.set_num_threads(1)
@@ -373,6 +383,7 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
 
     fns = {
         'ours': lambda: matcher.match(left, right),
+        'coarse': lambda: coarse.match(left, right),
         'hh': lambda: opencv_sgbm(left, right, TUNED_HH, disparity_range=disparities),
         'sgbm': lambda: opencv_sgbm(left, right, TUNED_SGBM, disparity_range=disparities),
     }
@@ -391,4 +402,4 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
                     ms['sgbm'], matcher.workspace_bytes / 1e6,
                     peak_memory(w, h, disparities, paths, threads) if memory else {},
                     cold_start_sgm() if cold_start else {},
-                    kernel_limits(), busy, busy_ms)
+                    kernel_limits(), busy, busy_ms, ms['coarse'], coarse.search_cells)
