@@ -166,6 +166,18 @@ def test_windows_beyond_the_memory_budget_fall_back_to_the_full_search() -> None
     np.testing.assert_array_equal(got.disparity, full.disparity)
 
 
+def test_a_range_the_half_width_cannot_hold_falls_back_to_the_full_search() -> None:
+    """min_disparity -11 fits a 12 px wide image but its half, -6, not a 6 px one."""
+    left, right = _pair(h=20, w=12, seed=3)
+    common: dict[str, Any] = {'disparity_range': 5, 'min_disparity': -11,
+                              'census_width': 3, 'census_height': 3}
+    full = SgmMatcher(SgmParams(**common)).match(left, right)
+    matcher = SgmMatcher(SgmParams(**common, disparity_search='coarse'))
+    got = matcher.match(left, right)
+    assert matcher.fallbacks == 1
+    np.testing.assert_array_equal(got.disparity, full.disparity)
+
+
 def test_bad_windows_are_refused() -> None:
     left, right = _pair()
     matcher = SgmMatcher(SgmParams(disparity_range=10, census_width=5, census_height=5))

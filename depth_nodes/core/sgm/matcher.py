@@ -223,7 +223,8 @@ class SgmMatcher:
         #: The out-of-image cost the last match used (0: none, extrapolation off).
         self.border_cost = 0
         #: Coarse search: frames matched with the full search because their windows did
-        #: not fit ``memory_mb``; the last frame's cells as a fraction of the full volume.
+        #: not fit ``memory_mb`` (or the range does not halve within the width); the last
+        #: frame's cells as a fraction of the full volume.
         self.fallbacks = 0
         self.search_cells = 1.0
         self._coarse: SgmMatcher | None = None
@@ -312,7 +313,8 @@ class SgmMatcher:
             if isinstance(value, dict):
                 return sum(size(v) for v in value.values())
             return 0
-        return size(self._buf) + size(self._total)
+        coarse = self._coarse.workspace_bytes if self._coarse is not None else 0
+        return size(self._buf) + size(self._total) + size(self._ranged_buf) + coarse
 
     def match(self, left: NDArray[Any], right: NDArray[Any], *,
               keep_total: bool = False) -> SgmResult:
@@ -368,7 +370,8 @@ class SgmMatcher:
                       threads: int) -> dict[str, Any] | None:
         """The coarse-to-fine search (``ranged.py``): a half-resolution full match, then
         the full-resolution one over each pixel's window. Returns the buffers holding the
-        selection, or None when the windows' volumes exceed ``memory_mb``."""
+        selection, or None when the windows' volumes exceed ``memory_mb`` or the
+        half-resolution pass cannot hold the range."""
         h, w = left.shape
         ch, cw = ranged.coarse_size(h, w)
         c_min, c_range = ranged.coarse_window(p.min_disparity, p.disparity_range)
@@ -376,6 +379,10 @@ class SgmMatcher:
             p, disparity_search='full', min_disparity=c_min,
             disparity_range=min(c_range, cw - 1), speckle_size=p.speckle_size // 4,
             speckle_range=p.speckle_range / 2, median_filter=False, band_rows=0)
+        try:  # a window at the edge of what the width allows may not halve
+            coarse_params.validate(cw)
+        except ArgumentError:
+            return None
         if self._coarse is None:
             self._coarse = SgmMatcher(coarse_params)
         elif self._coarse.params != coarse_params:
