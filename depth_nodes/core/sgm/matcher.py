@@ -389,10 +389,11 @@ class SgmMatcher:
             self._coarse.set_params(coarse_params)
         coarse = self._coarse.match(cv2.resize(left, (cw, ch), interpolation=cv2.INTER_AREA),
                                     cv2.resize(right, (cw, ch), interpolation=cv2.INTER_AREA))
+        outside = p.border_extrapolation * p.disparity_range if p.border_cost > 0 else 0.0
         lo, wid = ranged.search_ranges(coarse.disparity, (h, w),
                                        min_disparity=p.min_disparity,
                                        disparity_range=p.disparity_range,
-                                       margin=p.search_margin)
+                                       margin=p.search_margin, outside=outside)
         return self._match_windows(left, right, p, threads, lo, wid)
 
     def match_windows(self, left: NDArray[Any], right: NDArray[Any], lo: NDArray[np.int32],
