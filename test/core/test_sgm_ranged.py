@@ -173,6 +173,21 @@ def test_windows_beyond_the_memory_budget_fall_back_to_the_full_search() -> None
     np.testing.assert_array_equal(got.disparity, full.disparity)
 
 
+def test_the_flat_volumes_grow_but_never_past_memory_mb() -> None:
+    """They grow by a quarter more than a frame needs, so that they seldom grow again,
+    but not past the budget that frame fits in."""
+    left, right = _pair(h=41, w=67, seed=2)
+    cells = 41 * 67 * 12  # a margin wider than the range: full windows
+    for memory_mb, grown in ((1.0, cells + cells // 4), (cells * 3.3e-6, cells * 11 // 10)):
+        matcher = SgmMatcher(SgmParams(disparity_range=12, census_width=5, census_height=5,
+                                       disparity_search='coarse', search_margin=100.0,
+                                       memory_mb=memory_mb))
+        matcher.match(left, right)
+        assert matcher.fallbacks == 0
+        flat = matcher._ranged_buf  # the sizes are the point here
+        assert flat['cost'].size == flat['partial'].size == grown
+
+
 def test_a_range_the_half_width_cannot_hold_falls_back_to_the_full_search() -> None:
     """min_disparity -11 fits a 12 px wide image but its half, -6, not a 6 px one."""
     left, right = _pair(h=20, w=12, seed=3)

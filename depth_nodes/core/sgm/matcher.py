@@ -430,7 +430,8 @@ class SgmMatcher:
 
     def _ranged_buffers(self, h: int, w: int, threads: int, cells: int) -> dict[str, Any]:
         """The coarse-to-fine search's buffers; the flat volumes grow to the largest
-        frame's windows (by a quarter more, so that they seldom grow again)."""
+        frame's windows (by a quarter more, so that they seldom grow again, but never past
+        ``memory_mb``)."""
         p = self.params
         n = p.disparity_range
         dirs = VERTICAL_DIRECTIONS[p.paths]
@@ -458,7 +459,8 @@ class SgmMatcher:
             self.allocations += 1
         b = self._ranged_buf
         if b['cost'].size < cells:
-            grown = cells + cells // 4
+            grown = max(cells, min(cells + cells // 4,
+                                   int(p.memory_mb * 1e6) // ranged.CELL_BYTES))
             b['cost'] = b['partial'] = None  # let the old ones go before the new ones
             b['cost'] = np.empty(grown, np.uint8)
             b['partial'] = np.empty(grown, np.uint16)
