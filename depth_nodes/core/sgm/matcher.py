@@ -63,6 +63,9 @@ OVERLAP_CHUNK = 8
 BORDER_ROW_STEP = 4
 #: disparity_search: every disparity, or windows from a half-resolution pass (ranged.py).
 SEARCH_MODES = ('full', 'coarse')
+#: Paths of the coarse search's half-resolution pass, by the frame's (only its windows
+#: depend on it).
+COARSE_PATHS = {8: 5, 16: 5}
 #: How a settings error names the matcher.
 LABEL = 'SGM parameter'
 #: The largest P2 (with 4 paths; fewer with more: the 16-bit sum of the paths).
@@ -378,7 +381,8 @@ class SgmMatcher:
         coarse_params = replace(
             p, disparity_search='full', min_disparity=c_min,
             disparity_range=min(c_range, cw - 1), speckle_size=p.speckle_size // 4,
-            speckle_range=p.speckle_range / 2, median_filter=False, band_rows=0)
+            speckle_range=p.speckle_range / 2, median_filter=False, band_rows=0,
+            paths=COARSE_PATHS.get(p.paths, p.paths))
         try:  # a window at the edge of what the width allows may not halve
             coarse_params.validate(cw)
         except ArgumentError:
@@ -390,11 +394,16 @@ class SgmMatcher:
         coarse = self._coarse.match(cv2.resize(left, (cw, ch), interpolation=cv2.INTER_AREA),
                                     cv2.resize(right, (cw, ch), interpolation=cv2.INTER_AREA))
         outside = p.border_extrapolation * p.disparity_range if p.border_cost > 0 else 0.0
-        lo, wid = ranged.search_ranges(coarse.disparity, (h, w),
-                                       min_disparity=p.min_disparity,
-                                       disparity_range=p.disparity_range,
-                                       margin=p.search_margin, outside=outside)
-        return self._match_windows(left, right, p, threads, lo, wid)
+        for align in (ranged.ALIGN, 1):  # aligned windows when they fit, else tight ones
+            lo, wid = ranged.search_ranges(coarse.disparity, (h, w),
+                                           min_disparity=p.min_disparity,
+                                           disparity_range=p.disparity_range,
+                                           margin=p.search_margin, outside=outside,
+                                           align=align)
+            b = self._match_windows(left, right, p, threads, lo, wid)
+            if b is not None:
+                return b
+        return None
 
     def match_windows(self, left: NDArray[Any], right: NDArray[Any], lo: NDArray[np.int32],
                       wid: NDArray[np.int32]) -> SgmResult | None:
