@@ -107,9 +107,10 @@ def search_ranges(coarse: F32, shape: tuple[int, int], *, min_disparity: int,
     window starts at disparity index 0 and reaches at least the largest disparity that
     may be published there (its match ``outside`` px past the border): the coarse pass
     is least reliable there, and the disparities are extrapolated from the neighbours
-    (``cost.fill_outside``). Teddy's checked bad-2 (5 paths): 0.0584 with the full
-    search, 0.0686 with the coarse windows in the strip, 0.0630 with these, 0.0586 with
-    the full range there (which at 1280x720 / 256 more than doubles the cells).
+    (``cost.fill_outside``). Teddy's bad-2 after the shipped graph's cross-check (5
+    paths): 0.0584 with the full search, 0.0686 with the coarse windows in the strip,
+    0.0630 with these, 0.0586 with the full range there (whose volumes at 1280x720 / 256
+    no longer fit the default memory_mb).
 
     Args:
         coarse: (ceil(H / 2), ceil(W / 2)) float32 disparity, NaN where invalid.
@@ -184,6 +185,18 @@ def _window_span(x: int, w: int, min_disparity: int, n_disp: int, lp: int,
     return a, b
 
 
+@njit(cache=True, nogil=True, inline='always')
+def _window_cell(y: int, x: int, w: int, min_disparity: int, n_disp: int, lo: I32,
+                 wid: I32, base: I64, out: U8) -> tuple[U8, int, int, int]:
+    """Pixel (y, x)'s cells in ``out``, the entries [a, b] whose match is inside the
+    image (:func:`_window_span`) and the mirrored right pixel of its entry 0."""
+    lp, n = lo[y, x], wid[y, x]
+    c0 = base[y * w + x]
+    cell = out[c0:c0 + n]
+    a, b = _window_span(x, w, min_disparity, n_disp, lp, n, cell)
+    return cell, a, b, w - 1 - (x - min_disparity) + lp
+
+
 @njit(cache=True, nogil=True)
 def _ranged_cost_rows(census_l: NDArray[Any], census_rm: NDArray[Any], left: F32,
                       right_m: F32, lo_l: F32, hi_l: F32, lo_rm: F32, hi_rm: F32, y0: int,
@@ -194,13 +207,9 @@ def _ranged_cost_rows(census_l: NDArray[Any], census_rm: NDArray[Any], left: F32
     w = census_l.shape[1]
     for y in range(y0, y0 + rows):
         for x in range(w):
-            lp, n = lo[y, x], wid[y, x]
-            c0 = base[y * w + x]
-            cell = out[c0:c0 + n]
-            a, b = _window_span(x, w, min_disparity, n_disp, lp, n, cell)
+            cell, a, b, xm0 = _window_cell(y, x, w, min_disparity, n_disp, lo, wid, base, out)
             if a > b:
                 continue
-            xm0 = w - 1 - (x - min_disparity) + lp  # mirrored right pixel of entry 0
             _pixel_costs(census_l[y, x], census_rm[y], left[y, x], lo_l[y, x], hi_l[y, x],
                          right_m[y], lo_rm[y], hi_rm[y], xm0, a, b, census_weight,
                          intensity_weight, use_bt, truncation, cell)
@@ -223,13 +232,9 @@ def _ranged_cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uin
             rm_lo[x] = np.uint16(census_rm[y, x] & np.uint32(0xFFFF))
             rm_hi[x] = np.uint16(census_rm[y, x] >> np.uint32(16))
         for x in range(w):
-            lp, n = lo[y, x], wid[y, x]
-            c0 = base[y * w + x]
-            cell = out[c0:c0 + n]
-            a, b = _window_span(x, w, min_disparity, n_disp, lp, n, cell)
+            cell, a, b, xm0 = _window_cell(y, x, w, min_disparity, n_disp, lo, wid, base, out)
             if a > b:
                 continue
-            xm0 = w - 1 - (x - min_disparity) + lp  # mirrored right pixel of entry 0
             cl = census_l[y, x]
             _pixel_costs_16(np.uint16(cl & np.uint32(0xFFFF)), np.uint16(cl >> np.uint32(16)),
                             rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
