@@ -173,6 +173,7 @@ def test_windows_beyond_the_memory_budget_fall_back_to_the_full_search() -> None
     matcher = SgmMatcher(SgmParams(**common, disparity_search='coarse'))
     got = matcher.match(left, right)
     assert matcher.fallbacks == 1
+    assert matcher.search_cells == 1.0
     np.testing.assert_array_equal(got.disparity, full.disparity)
 
 

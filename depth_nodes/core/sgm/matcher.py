@@ -345,6 +345,7 @@ class SgmMatcher:
             if b is not None:
                 return self._finish(b, p)
             self.fallbacks += 1
+            self.search_cells = 1.0
         b = self._buffers(h, w, threads)
         inputs = _cost_inputs(left, right, p, b['census'])
         if keep_total and self._total.shape != (h, w, p.disparity_range):
