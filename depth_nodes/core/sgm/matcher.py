@@ -503,6 +503,13 @@ def _cost_inputs(left: NDArray[Any], right: NDArray[Any], p: SgmParams,
         census_buffers=census)
 
 
+def _border_cost(p: SgmParams, total: float, h: int, w: int) -> int:
+    """The out-of-image cost: ``border_cost`` times the frame's mean best cost, from the
+    sum ``total`` of the best costs of the sampled rows (1 .. 254)."""
+    count = mean_best_count(h, w, p.disparity_range, p.min_disparity, BORDER_ROW_STEP)
+    return min(254, max(1, round(p.border_cost * total / count)))
+
+
 def _outputs(h: int, w: int, dirs: tuple[tuple[int, int], ...]) -> dict[str, Any]:
     """The buffers both searches share: the vertical directions' steps, the outputs."""
     return {'dxs': np.array([d[0] for d in dirs], np.int64),
@@ -597,10 +604,7 @@ class _Frame:
 
     def _border(self) -> None:
         """Set :attr:`border_cost` from the sampled rows."""
-        p = self.p
-        count = mean_best_count(self.h, self.w, p.disparity_range, p.min_disparity,
-                                BORDER_ROW_STEP)
-        self.border_cost = min(254, max(1, round(p.border_cost * sum(self.samples) / count)))
+        self.border_cost = _border_cost(self.p, sum(self.samples), self.h, self.w)
 
     def _cost(self, k: int) -> Any:
         """Whole volumes: the cost of band k (a slice of the frame's volume)."""
@@ -742,8 +746,7 @@ class _RangedFrame:
         x_lo, x_hi = _full_range_columns(w, n, p.min_disparity)
         total = ranged.ranged_best_cost_sum(self.buf['cost'], self.lo, self.wid, self.base,
                                             x_lo, x_hi, BORDER_ROW_STEP)
-        count = mean_best_count(h, w, n, p.min_disparity, BORDER_ROW_STEP)
-        self.border_cost = min(254, max(1, round(p.border_cost * total / count)))
+        self.border_cost = _border_cost(p, total, h, w)
         ranged.ranged_fill_outside(self.buf['cost'], self.lo, self.wid, self.base, 0, h,
                                    p.min_disparity, n, self.border_cost)
 
