@@ -20,6 +20,20 @@ NODE_SCRIPTS = [
     'point_cloud = depth_nodes.nodes.point_cloud:main',
     'structured_light = depth_nodes.nodes.structured_light:main',
     'static_transform = depth_nodes.nodes.static_transform:main',
+    'point_cloud_xyz = depth_nodes.nodes.point_cloud_xyz:main',
+    'point_cloud_xyzrgb = depth_nodes.nodes.point_cloud_xyzrgb:main',
+    'register_depth = depth_nodes.nodes.register_depth:main',
+    'convert_metric = depth_nodes.nodes.convert_metric:main',
+    'depth_disparity = depth_nodes.nodes.depth_disparity:main',
+    # image_pipeline's executable names (depth_nodes/nodes/__init__.py: UPSTREAM_EXECUTABLES)
+    'rectify_node = depth_nodes.nodes.upstream:rectify_node',
+    'disparity_node = depth_nodes.nodes.upstream:disparity_node',
+    'point_cloud_node = depth_nodes.nodes.upstream:point_cloud_node',
+    'convert_metric_node = depth_nodes.nodes.upstream:convert_metric_node',
+    'point_cloud_xyz_node = depth_nodes.nodes.upstream:point_cloud_xyz_node',
+    'point_cloud_xyzrgb_node = depth_nodes.nodes.upstream:point_cloud_xyzrgb_node',
+    'register_node = depth_nodes.nodes.upstream:register_node',
+    'depth_disparity_node = depth_nodes.nodes.upstream:depth_disparity_node',
 ]
 
 ROS_WHEELS = [

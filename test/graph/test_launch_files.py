@@ -20,7 +20,7 @@ from launch_checks import (
     source_prefix,
 )
 
-from depth_nodes.nodes import NODE_PLUGINS
+from depth_nodes.nodes import NODE_PLUGINS, UPSTREAM_EXECUTABLES
 
 
 @pytest.mark.parametrize('path', LAUNCH_FILES, ids=lambda p: p.name)
@@ -46,9 +46,12 @@ def test_stereo_pipeline_launch_mirrors_its_config() -> None:
 def test_every_node_plugin_has_a_console_script_of_the_same_name() -> None:
     """`ros2 run depth_nodes <plugin>` and the launch files rely on it."""
     scripts = node_scripts()
-    assert set(scripts) == set(NODE_PLUGINS)
-    for name, target in scripts.items():
-        assert target.partition(':')[0] == NODE_PLUGINS[name].partition(':')[0], name
+    assert set(scripts) == set(NODE_PLUGINS) | set(UPSTREAM_EXECUTABLES)
+    assert not set(NODE_PLUGINS) & set(UPSTREAM_EXECUTABLES)
+    for name in NODE_PLUGINS:
+        assert scripts[name].partition(':')[0] == NODE_PLUGINS[name].partition(':')[0], name
+    for name in UPSTREAM_EXECUTABLES:
+        assert scripts[name] == f'depth_nodes.nodes.upstream:{name}', name
 
 
 def test_a_mismatch_with_the_config_is_caught(tmp_path: Path,
