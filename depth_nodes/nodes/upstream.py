@@ -23,6 +23,7 @@ def _runner(executable: str) -> Callable[[list[str] | None], None]:
             return node_class(node_name)  # type: ignore[no-any-return]
 
         make.__name__ = cls  # how run_node's errors name the node
+        make.__module__ = module  # and whose notes its --help prints
         sys.exit(run_node(make, args))
 
     main.__name__ = executable

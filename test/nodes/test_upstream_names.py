@@ -7,6 +7,8 @@ parameters."""
 from __future__ import annotations
 
 import importlib
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -106,3 +108,19 @@ def generate_launch_description():
     check_launch_file(launch, source_prefix(tmp_path), monkeypatch)
 
 
+
+
+@pytest.mark.parametrize('script', ['tof', 'register_node', 'point_cloud_xyzrgb_node'])
+def test_a_node_script_answers_help_and_refuses_bad_ros_args_in_one_line(
+        script: str, ros_env: dict[str, str]) -> None:
+    path = Path(sys.executable).parent / script
+    shown = subprocess.run([str(path), '--help'], capture_output=True, text=True, env=ros_env,
+                           timeout=120, check=False)
+    assert shown.returncode == 0, shown.stderr
+    assert 'usage:' in shown.stdout
+    assert 'Publishes' in shown.stdout
+    bad = subprocess.run([str(path), '--ros-args', '--help'], capture_output=True, text=True,
+                         env=ros_env, timeout=120, check=False)
+    assert bad.returncode == 1
+    assert bad.stderr.strip().endswith("bad --ros-args: ['--help']")
+    assert 'Traceback' not in bad.stderr
