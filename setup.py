@@ -25,6 +25,7 @@ NODE_SCRIPTS = [
     'register_depth = depth_nodes.nodes.register_depth:main',
     'convert_metric = depth_nodes.nodes.convert_metric:main',
     'depth_disparity = depth_nodes.nodes.depth_disparity:main',
+    'tof = depth_nodes.nodes.tof:main',
     # image_pipeline's executable names (depth_nodes/nodes/__init__.py: UPSTREAM_EXECUTABLES)
     'rectify_node = depth_nodes.nodes.upstream:rectify_node',
     'disparity_node = depth_nodes.nodes.upstream:disparity_node',

@@ -18,6 +18,7 @@ NODE_PLUGINS: dict[str, str] = {
     'register_depth': 'depth_nodes.nodes.register_depth:RegisterNode',
     'convert_metric': 'depth_nodes.nodes.convert_metric:ConvertMetricNode',
     'depth_disparity': 'depth_nodes.nodes.depth_disparity:DepthDisparityNode',
+    'tof': 'depth_nodes.nodes.tof:ToFNode',
 }
 
 #: Executables under image_pipeline's names, so that a launch file written for image_proc,

@@ -43,9 +43,10 @@ def _frame_done(count: int, index: int) -> None:
 
 def _generate(args: argparse.Namespace) -> int:
     from depth_nodes.tools.bags import structured_light as sl
+    from depth_nodes.tools.bags import tof
     from depth_nodes.tools.bags.generate import PRESETS, preset, write_stereo_bag
 
-    known = [*PRESETS, *sl.PRESETS]
+    known = [*PRESETS, *sl.PRESETS, *tof.PRESETS]
     if args.preset == 'bad_inputs':
         from depth_nodes.tools.evaluation.campaign import write_bad_input_bag
 
@@ -61,6 +62,21 @@ def _generate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     for name in names:
         path = out / name if args.preset == 'all' else out
+        if name in tof.PRESETS:
+            tof_config = tof.PRESETS[name]
+            if args.seed is not None:
+                tof_config = dataclasses.replace(tof_config, seed=args.seed)
+            if args.frames is not None:
+                tof_config = dataclasses.replace(tof_config, n_frames=args.frames)
+            count = tof.write_tof_bag(path, tof_config, overwrite=args.force)
+            size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
+            print(f'{path}: {name}, {tof_config.width}x{tof_config.height}, '
+                  f'{tof_config.n_frames} frames of {len(tof_config.frequencies_mhz)} x '
+                  f'{tof_config.phase_steps} correlation planes, {count} messages, '
+                  f'{size:.1f} MB')
+            if signals.stop_requested():
+                break
+            continue
         if name in sl.PRESETS:
             sl_config = sl.PRESETS[name]
             if args.seed is not None:
@@ -347,6 +363,13 @@ def _cmd_eval_sl(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_eval_tof(args: argparse.Namespace) -> int:
+    from depth_nodes.tools.evaluation.tof import evaluate_tof_bag
+
+    print(evaluate_tof_bag(args.bag, depth_topic=args.depth_topic).format())
+    return 0
+
+
 def _check_bench_args(args: argparse.Namespace) -> None:
     """Refuse values no benchmark can run with, in one line each."""
     if args.frames is not None and args.frames < 1:
@@ -391,7 +414,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         return 0
     if args.stage is None:
         raise ConfigError('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
-                          'structured_light, soak) or --live')
+                          'structured_light, tof, soak) or --live')
     _check_bench_args(args)
     if args.stage == 'soak':
         from depth_nodes.tools.bench.soak import soak
@@ -424,6 +447,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from depth_nodes.tools.bench.nodes import bench_point_cloud
 
         print(bench_point_cloud(repeats=args.frames or 20).format())
+    elif args.stage == 'tof':
+        from depth_nodes.tools.evaluation.tof import bench_tof
+
+        bag = args.bag or str(BUNDLED_BAGS / 'tof_vga')
+        print(bench_tof(bag, repeats=args.frames or 20, threads=threads).format())
     elif args.stage == 'structured_light':
         from depth_nodes.tools.evaluation.structured_light import bench_structured_light
 
@@ -460,8 +488,8 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument('out', help='bag folder to create (a parent folder with --preset all)')
     gen.add_argument('--preset', default='stereo_vga',
                      help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye, '
-                     'structured_light_vga, all (these four), or bad_inputs (the hostile '
-                     'campaign, from --source)')
+                     'structured_light_vga, tof_vga, all (these five), or bad_inputs (the '
+                     'hostile campaign, from --source)')
     gen.add_argument('--source', help='bad_inputs: stereo bag whose raw frames to use '
                      '(default: the bundled stereo_vga)')
     gen.add_argument('--seed', type=int, help='override the preset seed')
@@ -676,9 +704,18 @@ def build_parser() -> argparse.ArgumentParser:
                       help='skip OpenCV (its per-pixel API is slow)')
     evsl.set_defaults(func=_cmd_eval_sl)
 
+    evtof = sub.add_parser('eval-tof',
+                           help='time-of-flight depth against the simulator\'s ground truth')
+    evtof.add_argument('bag', help='a bag processed from generate --preset tof_vga with '
+                       'config/tof_pipeline.yaml')
+    evtof.add_argument('--depth-topic', default='/tof/depth/image_rect',
+                       help='the depth to score (default /tof/depth/image_rect)')
+    evtof.set_defaults(func=_cmd_eval_tof)
+
     bench = sub.add_parser('bench', help='speed figures beside OpenCV, measured in one run')
     bench.add_argument('stage', nargs='?', choices=['rectify', 'sgm', 'cross_check',
-                                                    'point_cloud', 'structured_light', 'soak'],
+                                                    'point_cloud', 'structured_light', 'tof',
+                                                    'soak'],
                        help='what to time (or --live); soak: the stereo graph fed for '
                        '--duration s at --rate, P2 changed every --tune-every s: losses, '
                        'memory, parameter answers')
@@ -698,7 +735,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument('--composed', action='store_true',
                        help='--live, soak: run each graph composed in one `depth-nodes '
                        'pipeline` process instead of one process per node')
-    bench.add_argument('--bag', help='structured_light, --live: the bag to use '
+    bench.add_argument('--bag', help='structured_light, tof, --live: the bag to use '
                        '(default: bundled)')
     bench.add_argument('--width', type=int, default=640, help='rectify: frame width')
     bench.add_argument('--height', type=int, default=480, help='rectify: frame height')

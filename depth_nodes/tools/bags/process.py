@@ -1,7 +1,8 @@
 """Offline bag harness: drive a bag's messages through the live node classes.
 
 Every message of the input bag is copied to the output bag (like ``ros2 bag record -a``
-during a replay would), and every message a node publishes is written at the timestamp of
+during a replay would), and so is its custom metadata (a generated bag's simulator
+settings), and every message a node publishes is written at the timestamp of
 the input message that caused it and handed, synchronously and in order, to every node that
 subscribes to its topic. Nothing goes over DDS and nothing can be lost to queue depths, so a
 run is deterministic.
@@ -276,6 +277,8 @@ def process_bag(
             writer = BagWriter(out_bag, overwrite=overwrite)
             try:
                 with writer:
+                    for key, value in reader.custom_data.items():  # the simulator's settings
+                        writer.set_custom_data(key, value)
                     if engine is None:
                         _run(reader, writer, nodes, routes, produced, report, progress)
                     else:
