@@ -11,7 +11,8 @@ PointCloud2 in the camera frame) and ``confidence`` (32FC1 in [0, 1]).
 Parameters (all but ``queue_size`` changeable at runtime; a sequence is decoded with the
 values current when its last frame arrives; changing ``mode`` or the pattern layout drops
 a sequence in progress): ``mode`` (gray, phase, opencv, speckle), ``axes``,
-``phase_steps``, ``phase_period``, ``shadow_threshold``, ``min_modulation``, ``depth_min``,
+``phase_steps``, ``phase_period``, ``shadow_threshold``, ``min_modulation``,
+``epipolar_tolerance`` (axes both: a code off its epipolar line is false), ``depth_min``,
 ``depth_max``, ``speckle_reference`` (image file), ``speckle_reference_depth``,
 ``speckle_window``, ``speckle_min_score``, ``avoid_point_cloud_padding``,
 ``max_sequence_frames``, ``sequence_timeout``, ``queue_size``.
@@ -270,7 +271,8 @@ class StructuredLightNode(DepthNode):
             result = reconstruct(np.stack([f[0] for f in frames]), pattern_set, geometry,
                                  rays=self._rays, shadow_threshold=values['shadow_threshold'],
                                  min_modulation=values['min_modulation'],
-                                 depth_min=values['depth_min'], depth_max=values['depth_max'])
+                                 depth_min=values['depth_min'], depth_max=values['depth_max'],
+                                 epipolar_tolerance=values['epipolar_tolerance'])
         except (ConfigError, CalibrationError) as exc:
             self.drop('bad_calibration', str(exc))
             return

@@ -10,6 +10,7 @@ import pytest
 from depth_nodes.core.structured_light import (
     ProjectorGeometry,
     camera_rays,
+    epipolar_distance,
     pixel_rays,
     triangulate_columns,
     triangulate_pixels,
@@ -86,3 +87,56 @@ def test_projector_p_must_hold_a_pose() -> None:
     skewed[:, 0] *= 1.5
     with pytest.raises(CalibrationError, match=r'projector P is not K_p \[R \| t\]'):
         ProjectorGeometry.from_models(camera, dataclasses.replace(projector, P=skewed))
+
+
+def test_true_codes_lie_on_their_epipolar_line_and_moved_ones_do_not() -> None:
+    """Exact projections of known points are on the line (to 1e-6 px, projector distortion
+    undone); a code moved across the line by 3 px is 3 px x the sine of its angle off."""
+    config = dataclasses.replace(CONFIG, projector_distortion=(0.1, -0.02, 0.0, 0.0, 0.0))
+    geometry = ProjectorGeometry.from_models(*projector_rig(config))
+    rays, proj = _observe(geometry, _points())
+    on_line = epipolar_distance(rays, proj[..., 0], proj[..., 1], geometry)
+    assert on_line.max() < 1e-3
+    # no yaw, camera and projector side by side: the lines run along the rows, nearly
+    flat = ProjectorGeometry.from_models(*projector_rig(dataclasses.replace(
+        CONFIG, projector_yaw_deg=0.0)))
+    rays, proj = _observe(flat, _points())
+    moved = epipolar_distance(rays, proj[..., 0], proj[..., 1] + 3.0, flat)
+    np.testing.assert_allclose(moved, 3.0, atol=0.05)
+    along = epipolar_distance(rays, proj[..., 0] + 3.0, proj[..., 1], flat)
+    assert along.max() < 0.05
+    nan = np.full_like(proj[..., 0], np.nan)
+    assert np.isnan(epipolar_distance(rays, nan, proj[..., 1], flat)).all()
+
+
+def test_reconstruct_rejects_false_codes_off_their_epipolar_line() -> None:
+    """A patch whose pattern frames arrive in reverse order decodes to false (column, row)
+    pairs; ray-ray triangulation gives them a depth anyway, the epipolar check removes
+    most; clean frames lose nothing to it (true codes lie within 1 px of their line)."""
+    from depth_nodes.core.structured_light import PatternSet, generate_patterns
+    from depth_nodes.core.structured_light.reconstruct import reconstruct
+    from depth_nodes.sim.projector import ProjectorCameraSim
+
+    config = ProjectorSimConfig(width=160, height=120, focal_px=140.0, projector_width=160,
+                                projector_height=120, projector_focal_px=125.0, seed=3,
+                                projector_distortion=(0.05, 0.0, 0.0, 0.0, 0.0))
+    sim = ProjectorCameraSim(config)
+    patterns = PatternSet('phase', 160, 120, 'both', 4, 16.0)
+    capture = sim.capture(generate_patterns(patterns), noise_seed=1)
+    geometry = ProjectorGeometry.from_models(sim.camera, sim.projector)
+    rays = camera_rays(sim.camera)
+    clean = reconstruct(capture.images, patterns, geometry, rays=rays, epipolar_tolerance=2.0)
+    plain = reconstruct(capture.images, patterns, geometry, rays=rays)
+    assert clean.epipolar_rejected == 0
+    np.testing.assert_array_equal(clean.depth, plain.depth)
+    images = capture.images.copy()
+    images[:, 40:80, 40:100] = capture.images[::-1, 40:80, 40:100]
+    patch = np.zeros((120, 160), bool)
+    patch[40:80, 40:100] = True
+    wrong = {}
+    for tolerance in (0.0, 2.0):
+        rec = reconstruct(images, patterns, geometry, rays=rays, epipolar_tolerance=tolerance)
+        est = np.isfinite(rec.depth) & patch
+        wrong[tolerance] = int((est & (np.abs(rec.depth - capture.depth) > 0.02)).sum())
+    assert wrong[0.0] >= 5
+    assert wrong[2.0] <= wrong[0.0] // 2

@@ -214,6 +214,7 @@ def test_mode_change_mid_sequence_drops_it(node: Any) -> None:
     ('mode', 'moire', "mode='moire' rejected: must be one of gray, phase, opencv, speckle"),
     ('axes', 'rows', "axes='rows' rejected: must be one of columns, both"),
     ('speckle_window', 10, 'speckle_window=10 rejected: must be odd'),
+    ('epipolar_tolerance', -1.0, 'Parameter epipolar_tolerance out of range'),
 ])
 def test_invalid_parameters_are_rejected_with_a_reason(node: Any, name: str, value: Any,
                                                        reason: str) -> None:

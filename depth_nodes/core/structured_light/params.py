@@ -27,6 +27,10 @@ class StructuredLightParams:
                                       'pixel', low=0.0, high=65535.0)
     min_modulation: float = setting(4.0, 'Minimum phase amplitude (grey levels); scale of '
                                     'the confidence', low=0.0, high=65535.0)
+    epipolar_tolerance: float = setting(2.0, 'axes both: projector pixels a decoded (column, '
+                                        'row) may lie off its camera pixel\'s epipolar line '
+                                        '(farther: a false code, no depth); 0: no check',
+                                        low=0.0, high=1000.0)
     depth_min: float = setting(0.2, 'Nearest depth kept (m)', low=0.01, high=1000.0)
     depth_max: float = setting(5.0, 'Farthest depth kept (m)', low=0.01, high=1000.0)
     speckle_reference: str = setting('', 'Speckle mode: image file (PNG, 8/16-bit grey) of '

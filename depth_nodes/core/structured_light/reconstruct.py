@@ -12,6 +12,7 @@ from depth_nodes.core.structured_light.patterns import PatternSet
 from depth_nodes.core.structured_light.triangulate import (
     ProjectorGeometry,
     camera_rays,
+    epipolar_distance,
     triangulate_columns,
     triangulate_pixels,
 )
@@ -22,19 +23,24 @@ F32 = NDArray[np.float32]
 
 @dataclass
 class Reconstruction:
-    """Depth (metres, NaN unknown), confidence in [0, 1] and the decoded coordinates."""
+    """Depth (metres, NaN unknown), confidence in [0, 1], the decoded coordinates and how
+    many decoded pixels the epipolar check rejected (0 with columns only)."""
 
     depth: F32
     confidence: F32
     decoded: DecodeResult
+    epipolar_rejected: int = 0
 
 
 def reconstruct(images: NDArray[np.generic], pattern_set: PatternSet,
                 geometry: ProjectorGeometry, *, rays: NDArray[np.float64] | None = None,
                 shadow_threshold: float = 12.0, min_modulation: float = 4.0,
-                depth_min: float = 0.1, depth_max: float = 10.0) -> Reconstruction:
+                depth_min: float = 0.1, depth_max: float = 10.0,
+                epipolar_tolerance: float = 0.0) -> Reconstruction:
     """Decode ``images`` and triangulate: ray-plane when only columns are coded, ray-ray
-    when rows are too.
+    when rows are too (and then, with ``epipolar_tolerance``, codes farther than that many
+    projector pixels from their camera pixel's epipolar line are rejected: see
+    :func:`~depth_nodes.core.structured_light.triangulate.epipolar_distance`).
 
     Args:
         images: (F, H, W) grey frames in the order of ``pattern_set.frames``.
@@ -45,6 +51,7 @@ def reconstruct(images: NDArray[np.generic], pattern_set: PatternSet,
         min_modulation: See :func:`decode_sequence`.
         depth_min: Depths below this (metres) become NaN.
         depth_max: Depths above this become NaN.
+        epipolar_tolerance: Projector pixels; 0 turns the check off.
 
     Raises:
         ConfigError: Frames, pattern set and calibration sizes disagree.
@@ -60,11 +67,18 @@ def reconstruct(images: NDArray[np.generic], pattern_set: PatternSet,
     decoded = decode_sequence(images, pattern_set, shadow_threshold=shadow_threshold,
                               min_modulation=min_modulation)
     rays = camera_rays(cam) if rays is None else rays
+    rejected = 0
     if decoded.v is None:
         depth = triangulate_columns(rays, decoded.u, geometry)
     else:
         depth = triangulate_pixels(rays, decoded.u, decoded.v, geometry)
+        if epipolar_tolerance > 0:
+            with np.errstate(invalid='ignore'):
+                off = epipolar_distance(rays, decoded.u, decoded.v, geometry) > \
+                    epipolar_tolerance
+            rejected = int(off.sum())
+            depth[off] = np.nan
     with np.errstate(invalid='ignore'):
         depth[(depth < depth_min) | (depth > depth_max)] = np.nan
     confidence = np.where(np.isfinite(depth), decoded.confidence, 0).astype(np.float32)
-    return Reconstruction(depth, confidence, decoded)
+    return Reconstruction(depth, confidence, decoded, rejected)

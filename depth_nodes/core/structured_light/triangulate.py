@@ -164,6 +164,43 @@ def triangulate_pixels(rays: F64, u: F32, v: F32, geometry: ProjectorGeometry) -
     return _finish(lam, rays, geometry)
 
 
+def epipolar_distance(rays: F64, u: F32, v: F32, geometry: ProjectorGeometry) -> F32:
+    """How far, in projector pixels, each decoded projector pixel lies from the epipolar
+    line of its camera pixel.
+
+    The points of a camera ray land, in the projector's undistorted image, on the line
+    through the camera centre's image ``K_p t`` and the ray's vanishing point ``K_p R r``.
+    A true code lies on it to within its noise; a false code (a wrong bit, a reflection,
+    a second light source) rarely does, and ray-ray triangulation would give it a depth
+    between the two rays all the same.
+
+    Args:
+        rays: (H, W, 3) camera rays.
+        u: (H, W) projector columns, NaN where unknown.
+        v: (H, W) projector rows, NaN where unknown.
+        geometry: The calibration (projector distortion is undone).
+
+    Returns:
+        (H, W) float32 distances, NaN where a coordinate is unknown.
+    """
+    h, w = np.shape(u)
+    ok = np.isfinite(u) & np.isfinite(v)
+    out = np.full((h, w), np.nan, dtype=np.float32)
+    if not ok.any():
+        return out
+    K = np.asarray(geometry.projector.K, dtype=np.float64).reshape(3, 3)
+    pix = np.column_stack([u[ok], v[ok]]).astype(np.float64)
+    points = pixel_rays(geometry.projector, pix) @ K.T  # undistorted, homogeneous
+    epipole = K @ geometry.translation
+    vanishing = rays[ok] @ (K @ geometry.rotation).T
+    lines = np.cross(epipole[None, :], vanishing)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        dist = np.abs(np.einsum('nk,nk->n', lines, points)) / np.hypot(lines[:, 0],
+                                                                      lines[:, 1])
+    out[ok] = dist.astype(np.float32)
+    return out
+
+
 def _finish(lam: F64, rays: F64, geometry: ProjectorGeometry) -> F32:
     """Depth ``lam * ray_z``; NaN where non-finite or not in front of both devices."""
     depth = lam * rays[..., 2]
