@@ -14,7 +14,8 @@ a sequence in progress): ``mode`` (gray, phase, opencv, speckle), ``axes``,
 ``phase_steps``, ``phase_period``, ``shadow_threshold``, ``min_modulation``,
 ``epipolar_tolerance`` (axes both: a code off its epipolar line is false), ``depth_min``,
 ``depth_max``, ``speckle_reference`` (image file), ``speckle_reference_depth``,
-``speckle_window``, ``speckle_min_score``, ``avoid_point_cloud_padding``,
+``speckle_window``, ``speckle_min_score``, ``speckle_uniqueness``,
+``avoid_point_cloud_padding``,
 ``max_sequence_frames``, ``sequence_timeout``, ``queue_size``.
 
 Memory is bounded by the parameters, never by what a sender claims: frames waiting for
@@ -59,7 +60,7 @@ from depth_nodes.core.structured_light.framing import (
 )
 from depth_nodes.core.structured_light.params import StructuredLightParams
 from depth_nodes.core.structured_light.reconstruct import reconstruct
-from depth_nodes.core.structured_light.speckle import SpeckleReference
+from depth_nodes.core.structured_light.speckle import SpeckleMatcher, SpeckleReference
 from depth_nodes.errors import (
     ArgumentError,
     CalibrationError,
@@ -116,6 +117,7 @@ class StructuredLightNode(DepthNode):
         self._geometry = InfoCache(_geometry)
         self._rays: NDArray[np.float64]
         self.reference = SpeckleReference()
+        self.speckle_matcher = SpeckleMatcher()  # keeps the reference's census
         self.pub_depth = self.add_output(Image, 'depth')
         self.pub_points = self.add_output(PointCloud2, 'points2')
         self.pub_confidence = self.add_output(Image, 'confidence')
@@ -303,7 +305,8 @@ class StructuredLightNode(DepthNode):
                 grey, ref, focal=geometry.camera.K[0, 0], baseline=float(geometry.centre[0]),
                 reference_depth=values['speckle_reference_depth'],
                 depth_min=values['depth_min'], depth_max=values['depth_max'],
-                window=values['speckle_window'], min_score=values['speckle_min_score'])
+                window=values['speckle_window'], min_score=values['speckle_min_score'],
+                uniqueness=values['speckle_uniqueness'], matcher=self.speckle_matcher)
         except ConfigError as exc:
             self.drop('bad_calibration', str(exc))
             return

@@ -264,7 +264,7 @@ def test_speckle_depth(context: Context, speckle_files: tuple[np.ndarray, Path])
     ('/nonexistent/ref.png', "cannot read speckle_reference '/nonexistent/ref.png': "
                              'No such file or directory'),
     ('TEXT', 'is not a one-channel image file OpenCV can read'),
-    ('SMALL', 'is 10x8, images are 96x72'),
+    ('SMALL', 'is 10x8; images are 96x72'),
 ])
 def test_bad_speckle_reference_is_a_counted_drop(context: Context, tmp_path: Path,
                                                  caplog: pytest.LogCaptureFixture,

@@ -17,6 +17,7 @@ from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.bags.process import process_bag
 from depth_nodes.tools.bags.structured_light import (
     PRESETS,
+    REFERENCE_MARGIN,
     StructuredLightBagConfig,
     read_structured_light_bag,
     write_structured_light_bag,
@@ -58,7 +59,7 @@ def test_topics_stamps_and_tags(small_bag: Path) -> None:
     assert set(bag.sequences[0].gt) == {'depth_gt', 'projector_u_gt', 'projector_v_gt',
                                         'shadow_gt'}
     assert bag.reference is not None
-    assert bag.reference.shape == (72, 96)
+    assert bag.reference.shape == (72, 96 + 2 * REFERENCE_MARGIN)  # wider: see the module
     np.testing.assert_allclose(bag.projector.P[0, 3] / bag.projector.K[0, 0], -0.1,
                                atol=1e-12)
 
@@ -98,6 +99,15 @@ def test_bundled_bag_meets_the_targets() -> None:
     assert phase.depth_rms_mm < 6.0
     assert rows['gray'].rms is not None
     assert 0.2 < rows['gray'].rms < 0.4  # integer columns: 1/sqrt(12) = 0.29 px
+    # single-shot speckle, the targets: >= 95 % of lit pixels decoded (measured
+    # 95.9 %), <= 1 % of shadowed ones given a depth (0.79 %); depth RMS 4.0 mm
+    speckle = rows['speckle']
+    assert speckle.decoded is not None
+    assert speckle.decoded >= 0.95
+    assert speckle.false is not None
+    assert speckle.false <= 0.01
+    assert speckle.depth_rms_mm is not None
+    assert speckle.depth_rms_mm < 6.0
 
 
 def test_bundled_bag_is_the_preset() -> None:

@@ -176,6 +176,8 @@ def _popcount_intrinsic(typingctx: Any, value: Any) -> Any:
 
 
 _popcount: Any = intrinsic(_popcount_intrinsic)
+#: The same, for the other kernels that compare census signatures (speckle matching).
+popcount: Any = _popcount
 
 
 @njit(cache=True, nogil=True)

@@ -37,10 +37,14 @@ class StructuredLightParams:
                                      'the dot pattern on a plane at speckle_reference_depth')
     speckle_reference_depth: float = setting(1.0, 'Depth of the speckle reference plane (m)',
                                              low=0.01, high=1000.0)
-    speckle_window: int = setting(11, 'Speckle correlation window side (odd)', low=3,
-                                  high=31, odd=True)
-    speckle_min_score: float = setting(0.5, 'Minimum ZNCC of a speckle match', low=-1.0,
-                                       high=1.0)
+    speckle_window: int = setting(9, 'Speckle: side of the box the census distances are '
+                                  'summed over (odd)', low=3, high=31, odd=True)
+    speckle_min_score: float = setting(0.42, 'Speckle: smallest match score, 1 - 2 x the '
+                                       'share of differing census bits (1 identical, 0 '
+                                       'unrelated)', low=-1.0, high=1.0)
+    speckle_uniqueness: float = setting(0.05, 'Speckle: how much lower (a share of it) the '
+                                        'best sum must be than the best one more than a pixel '
+                                        'away', low=0.0, high=1.0)
     max_sequence_frames: int = setting(128, 'Longest sequence held; a tag announcing more is '
                                        'refused (pattern_count_too_large)', low=2, high=4096)
     sequence_timeout: float = setting(5.0, 'Seconds without a frame after which an '

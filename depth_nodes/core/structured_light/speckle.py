@@ -1,17 +1,32 @@
-"""Single-shot speckle depth (Kinect-style): match against a reference image, row by row.
+"""Single-shot speckle depth (Kinect-style): census matching against a reference image.
 
 The reference is the camera's image of the dot pattern on a fronto-parallel plane at a
 known depth ``Z_ref``. With the projector displaced by ``b`` metres along the camera's x
 axis (no rotation), a dot seen at column ``x_ref`` in the reference appears at
 ``x = x_ref + s`` with ``s = f b (1 / Z - 1 / Z_ref)`` (``f``: camera focal length in
-pixels), so ``Z = 1 / (1 / Z_ref + s / (f b))``. ``s`` is found per pixel by zero-mean
-normalised cross-correlation (ZNCC) of a square window along the same row of the
-reference, over the shifts that the depth range allows, refined to sub-pixel by a
-parabola through the best score and its two neighbours.
+pixels), so ``Z = 1 / (1 / Z_ref + s / (f b))``. A reference may be wider than the
+camera's images: its extra columns, as many on the left as on the right, hold the pattern
+beyond the camera's view at ``Z_ref``, so that near and far surfaces at the image's sides,
+whose dots came from there, still find them.
 
-The ZNCC of every shift is computed with box filters (O(1) per pixel and shift, any
-window), so no compiled kernel is needed; :func:`match_rows_reference` is the direct
-per-pixel definition the tests compare against.
+Matching (numba, :func:`match_speckle`): the census signature of a 7 x 9 window (62 bits,
+one per neighbour darker than the centre) of every pixel of both images; per pixel and
+shift the Hamming distance between the image's signature and the reference's, summed over
+a ``window`` x ``window`` box. The lowest sum wins, refined to sub-pixel by a parabola
+through its neighbours, and is kept only when
+
+* its score ``1 - 2 sum / bits`` (1: identical, about 0 for unrelated patterns) is at
+  least ``min_score``;
+* it beats the best shift more than one pixel away by ``uniqueness`` of that one's sum
+  (a repeated or featureless neighbourhood has two);
+* matching the other way agrees to a pixel: among the image pixels that could show this
+  reference pixel, the winner is this shift (an occluded or shadowed pixel has no
+  partner, and a spurious best rarely wins both ways);
+* it is not an end of the shift range.
+
+Shadows carry no dots, so their census is the scene's own texture and matches nothing
+consistently. :func:`match_speckle_reference` is the plain definition the tests compare
+the kernel against.
 """
 
 from __future__ import annotations
@@ -20,14 +35,22 @@ import math
 from pathlib import Path
 
 import cv2
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from depth_nodes.core.sgm.cost import census_transform, census_transform_reference, popcount
 from depth_nodes.errors import ConfigError, InputFileError
 
 F32 = NDArray[np.float32]
-#: Windows with a standard deviation below this (grey levels) have no usable texture.
-MIN_STD = 1.0
+#: The census window of speckle matching (rows, columns): 62 bits.
+CENSUS_WINDOW = (7, 9)
+#: Cost of a shift whose reference column lies outside the reference (more than any
+#: census distance).
+OUTSIDE = 64
+#: Rows of a band of the matcher (each thread takes bands; the box's rows around a band
+#: are costed twice).
+BAND_ROWS = 60
 
 
 def shift_range(focal: float, baseline: float, reference_depth: float, depth_min: float,
@@ -49,157 +72,352 @@ def shift_to_depth(shift: F32, focal: float, baseline: float, reference_depth: f
         return np.where(inv > 0, 1.0 / inv, np.nan).astype(np.float32)
 
 
-def _check_pair(image: NDArray[np.generic], reference: NDArray[np.generic], window: int) -> None:
-    if np.ndim(image) != 2 or np.shape(image) != np.shape(reference):
-        raise ConfigError(f'image and reference must be 2-D of one size, got '
-                          f'{np.shape(image)} and {np.shape(reference)}')
+def _check_pair(image: NDArray[np.generic], reference: NDArray[np.generic], window: int) -> int:
+    """The reference's margin (extra columns on each side); raises on shapes that do not
+    fit."""
+    if np.ndim(image) != 2 or np.ndim(reference) != 2:
+        raise ConfigError(f'image and reference must be 2-D, got {np.shape(image)} and '
+                          f'{np.shape(reference)}')
+    (h, w), (hr, wr) = np.shape(image), np.shape(reference)
+    if hr != h or wr < w or (wr - w) % 2:
+        raise ConfigError(f'the reference must have the image\'s {h} rows and its {w} columns '
+                          f'plus as many extra on each side, got {wr}x{hr} for {w}x{h}')
     if window < 3 or window % 2 == 0:
         raise ConfigError(f'window must be odd and >= 3, got {window}')
+    return int((wr - w) // 2)
 
 
-def match_rows(image: NDArray[np.generic], reference: NDArray[np.generic], *,
-               shift_min: int, shift_max: int, window: int = 9,
-               min_score: float = 0.5) -> tuple[F32, F32]:
-    """Best sub-pixel row shift ``x - x_ref`` of every pixel, by ZNCC.
+@numba.njit(cache=True, nogil=True)
+def _box_along_x(cost: NDArray[np.uint16], r: int, total: NDArray[np.uint16],
+                 triple: NDArray[np.uint16]) -> None:
+    """``total[x]`` = the sum of ``cost`` over x - r .. x + r (edges replicated). A side of
+    3 m is summed as m sums of 3 (m + 2 adds instead of 3 m - 1)."""
+    w = cost.shape[0]
+    n = 2 * r + 1
+    if n % 3 == 0 and w > n:
+        # triple[x] = cost[x - 1] + cost[x] + cost[x + 1] (clamped), then every third one
+        triple[0] = cost[0] + cost[0] + cost[1]
+        triple[w - 1] = cost[w - 2] + cost[w - 1] + cost[w - 1]
+        mid, left, right = triple[1:w - 1], cost[:w - 2], cost[2:]
+        centre = cost[1:w - 1]
+        for i in range(w - 2):
+            mid[i] = left[i] + centre[i] + right[i]
+        total[:] = 0
+        for j in range(-(n // 3 // 2), n // 3 // 2 + 1):
+            t = 3 * j
+            lo, hi = max(0, -t), min(w, w - t)
+            part, shifted = total[lo:hi], triple[lo + t:hi + t]
+            for i in range(hi - lo):
+                part[i] += shifted[i]
+            # a triple beyond the edge is the edge cost, three times (replicated)
+            for x in range(lo):
+                total[x] += 3 * cost[0]
+            for x in range(hi, w):
+                total[x] += 3 * cost[w - 1]
+        return
+    total[:] = 0
+    for t in range(-r, r + 1):
+        lo, hi = max(0, -t), min(w, w - t)
+        part, shifted = total[lo:hi], cost[lo + t:hi + t]
+        for i in range(hi - lo):
+            part[i] += shifted[i]
+        for x in range(lo):
+            total[x] += cost[0]
+        for x in range(hi, w):
+            total[x] += cost[w - 1]
+
+
+@numba.njit(cache=True, nogil=True)
+def _box_row(ci: NDArray[np.uint64], cr: NDArray[np.uint64], y: int, margin: int, smin: int,
+             r: int, costs: NDArray[np.uint16], out: NDArray[np.uint16],
+             triple: NDArray[np.uint16]) -> None:
+    """Row ``y``'s Hamming distances summed over 2r + 1 columns (edges replicated), shift
+    by shift: ``out[k, x]``. Every inner loop runs along a row view indexed by the loop
+    counter alone, so it vectorises."""
+    w = ci.shape[1]
+    wr = cr.shape[1]
+    shifts = costs.shape[0]
+    image_row, reference_row = ci[y], cr[y]
+    for k in range(shifts):
+        offset = margin - smin - k  # the reference column of x is x + offset
+        x_lo, x_hi = min(max(0, -offset), w), max(min(w, wr - offset), 0)
+        cost = costs[k]
+        cost[:x_lo] = OUTSIDE
+        cost[max(x_hi, x_lo):] = OUTSIDE
+        if x_hi > x_lo:
+            dst = cost[x_lo:x_hi]
+            src = image_row[x_lo:x_hi]
+            ref = reference_row[x_lo + offset:x_hi + offset]
+            for i in range(x_hi - x_lo):
+                dst[i] = popcount(src[i] ^ ref[i])
+        _box_along_x(cost, r, out[k], triple[k])
+
+
+@numba.njit(cache=True, nogil=True)
+def _add_rows(column: NDArray[np.uint16], new: NDArray[np.uint16], old: NDArray[np.uint16]
+              ) -> None:
+    """``column += new - old``, row view by row view."""
+    for k in range(column.shape[0]):
+        dst, plus, minus = column[k], new[k], old[k]
+        for x in range(dst.shape[0]):
+            dst[x] += plus[x] - minus[x]
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _match_kernel(ci: NDArray[np.uint64], cr: NDArray[np.uint64], margin: int, smin: int,
+                  shifts: int, r: int, bits: int, min_score: float, uniqueness: float,
+                  shift_out: F32, score_out: F32) -> None:
+    h, w = ci.shape
+    wr = cr.shape[1]
+    rows = 2 * r + 1
+    n_bands = (h + BAND_ROWS - 1) // BAND_ROWS
+    big = np.uint16(65535)
+    for band in numba.prange(n_bands):
+        y0 = band * BAND_ROWS
+        y1 = min(y0 + BAND_ROWS, h)
+        costs = np.empty((shifts, w), np.uint16)
+        triple = np.empty((shifts, w), np.uint16)
+        # the box's rows, top to bottom, in buffers order[0 .. rows - 1]; one more spare
+        ring = np.zeros((rows + 1, shifts, w), np.uint16)
+        order = np.arange(rows)
+        spare = rows
+        column = np.zeros((shifts, w), np.uint16)  # their sum
+        best = np.empty(w, np.uint16)
+        best_k = np.empty(w, np.int32)
+        second = np.empty(w, np.uint16)
+        ref_min = np.empty(wr, np.uint16)
+        ref_k = np.empty(wr, np.int32)
+        for i in range(rows):  # rows y0 - r .. y0 + r; the spare buffer holds zeros
+            t = y0 - r + i
+            _box_row(ci, cr, min(max(t, 0), h - 1), margin, smin, r, costs, ring[i], triple)
+            _add_rows(column, ring[i], ring[rows])
+        for y in range(y0, y1):
+            best[:] = big
+            ref_min[:] = big
+            for k in range(shifts):
+                sums = column[k]
+                for x in range(w):
+                    c = sums[x]
+                    better = c < best[x]
+                    best[x] = c if better else best[x]
+                    best_k[x] = k if better else best_k[x]
+                # the reference side: reference column x + offset, its lowest sum
+                offset = margin - smin - k
+                x_lo, x_hi = max(0, -offset), min(w, wr - offset)
+                if x_hi > x_lo:
+                    part = sums[x_lo:x_hi]
+                    low = ref_min[x_lo + offset:x_hi + offset]
+                    arg = ref_k[x_lo + offset:x_hi + offset]
+                    for i in range(x_hi - x_lo):
+                        better = part[i] < low[i]
+                        low[i] = part[i] if better else low[i]
+                        arg[i] = k if better else arg[i]
+            second[:] = big
+            for k in range(shifts):
+                sums = column[k]
+                for x in range(w):
+                    far = abs(k - best_k[x]) > 1
+                    second[x] = min(second[x], sums[x]) if far else second[x]
+            for x in range(w):
+                kb = best_k[x]
+                cb = np.int32(best[x])
+                shift_out[y, x] = np.nan
+                score = 1.0 - 2.0 * cb / bits
+                score_out[y, x] = score
+                if kb == 0 or kb == shifts - 1 or score < min_score:
+                    continue
+                xr = x - (smin + kb) + margin
+                if not 0 <= xr < wr or abs(ref_k[xr] - kb) > 1:
+                    continue
+                if np.int32(second[x]) - cb < uniqueness * second[x]:
+                    continue
+                left, right = np.int32(column[kb - 1, x]), np.int32(column[kb + 1, x])
+                curve = left - 2 * cb + right
+                delta = 0.5 * (left - right) / curve if curve > 0 else 0.0
+                shift_out[y, x] = smin + kb + min(max(delta, -0.5), 0.5)
+            # slide the box down a row: row y + r + 1 into the spare buffer, row y - r out
+            if y + 1 < y1:
+                _box_row(ci, cr, min(y + r + 1, h - 1), margin, smin, r, costs, ring[spare],
+                         triple)
+                leaving = order[0]
+                _add_rows(column, ring[spare], ring[leaving])
+                order[:-1] = order[1:].copy()
+                order[rows - 1] = spare
+                spare = leaving
+
+
+class SpeckleMatcher:
+    """:func:`match_speckle` with the reference's census kept between frames."""
+
+    def __init__(self) -> None:
+        self._reference: NDArray[np.generic] | None = None
+        self._census: NDArray[np.uint64] | None = None
+        self._buffer: NDArray[np.uint64] | None = None  # the image's census, reused
+
+    def _image_census(self, shape: tuple[int, ...]) -> NDArray[np.uint64]:
+        if self._buffer is None or self._buffer.shape != shape:
+            self._buffer = np.empty(shape, np.uint64)
+        return self._buffer
+
+    def reference_census(self, reference: NDArray[np.generic]) -> NDArray[np.uint64]:
+        """The census of ``reference``, computed again only for another array."""
+        if self._census is None or reference is not self._reference:
+            self._census = census_transform(reference, CENSUS_WINDOW,
+                                            np.empty(np.shape(reference), np.uint64))
+            self._reference = reference
+        return self._census
+
+    def match(self, image: NDArray[np.generic], reference: NDArray[np.generic], *,
+              shift_min: int, shift_max: int, window: int = 9, min_score: float = 0.42,
+              uniqueness: float = 0.05) -> tuple[F32, F32]:
+        """See :func:`match_speckle`."""
+        margin = _check_pair(image, reference, window)
+        if shift_max - shift_min < 2:
+            raise ConfigError(f'the shift range {shift_min}..{shift_max} needs at least 3 '
+                              'shifts')
+        ci = census_transform(image, CENSUS_WINDOW, self._image_census(image.shape))
+        cr = self.reference_census(reference)
+        h, w = ci.shape
+        shift = np.empty((h, w), np.float32)
+        score = np.empty((h, w), np.float32)
+        bits = window * window * (CENSUS_WINDOW[0] * CENSUS_WINDOW[1] - 1)
+        _match_kernel(ci, cr, margin, int(shift_min), int(shift_max - shift_min + 1),
+                      window // 2, bits, float(min_score), float(uniqueness), shift, score)
+        return shift, score
+
+
+def match_speckle(image: NDArray[np.generic], reference: NDArray[np.generic], *,
+                  shift_min: int, shift_max: int, window: int = 9, min_score: float = 0.42,
+                  uniqueness: float = 0.05) -> tuple[F32, F32]:
+    """Best sub-pixel row shift ``x - x_ref`` of every pixel (see the module notes).
 
     Args:
         image: (H, W) grey image.
-        reference: (H, W) grey reference image.
+        reference: (H, W + 2 m) grey reference image (``m`` extra columns each side).
         shift_min: Smallest shift searched (pixels).
         shift_max: Largest shift searched (pixels).
-        window: Odd side of the square correlation window.
-        min_score: Pixels whose best ZNCC is below this are invalid.
+        window: Odd side of the box the census distances are summed over.
+        min_score: Smallest score ``1 - 2 sum / bits`` kept.
+        uniqueness: How much lower, as a fraction of it, the winner's sum must be than
+            the best one more than a pixel away.
 
     Returns:
-        (shift, score): (H, W) float32 shift (NaN invalid, also where the best shift is an
-        end of the range) and the best ZNCC score in [-1, 1] (NaN without texture).
+        (shift, score): (H, W) float32 shift (NaN where rejected) and the winner's score.
 
     Raises:
-        ConfigError: Sizes differ, an even or too small window, or an empty range.
+        ConfigError: Shapes that do not fit, an even or too small window, fewer than three
+            shifts.
     """
-    _check_pair(image, reference, window)
-    if shift_max < shift_min:
-        raise ConfigError(f'empty shift range {shift_min}..{shift_max}')
-    h, w = np.shape(image)
+    return SpeckleMatcher().match(image, reference, shift_min=shift_min, shift_max=shift_max,
+                                  window=window, min_score=min_score, uniqueness=uniqueness)
+
+
+def match_speckle_reference(image: NDArray[np.generic], reference: NDArray[np.generic], *,
+                            shift_min: int, shift_max: int, window: int = 9,
+                            min_score: float = 0.42, uniqueness: float = 0.05
+                            ) -> tuple[F32, F32]:
+    """Plain numpy definition of :func:`match_speckle` (for the tests; small images)."""
+    margin = _check_pair(image, reference, window)
+    ci = census_transform_reference(image, CENSUS_WINDOW)
+    cr = census_transform_reference(reference, CENSUS_WINDOW)
+    h, w = ci.shape
+    wr = cr.shape[1]
+    shifts = np.arange(shift_min, shift_max + 1)
+    xs = np.arange(w)[:, None] - shifts[None, :] + margin  # (W, S) reference columns
+    inside = (xs >= 0) & (xs < wr)
+    xor = ci[:, :, None] ^ cr[:, np.clip(xs, 0, wr - 1)]
+    table = np.array([bin(v).count('1') for v in range(256)], np.int64)
+    ham = sum(table[(xor >> np.uint64(8 * i)) & np.uint64(255)] for i in range(8))
+    costs = np.where(inside[None], ham, OUTSIDE)
     r = window // 2
-    # Reflect-padded copies: the windows of every pixel lie inside them, so box sums over
-    # the central region equal the per-window sums of the reference definition exactly.
-    img: F32 = np.pad(np.asarray(image, dtype=np.float32), r, mode='symmetric')
-    ref: F32 = np.pad(np.asarray(reference, dtype=np.float32), r, mode='symmetric')
-    ksize = (window, window)
-
-    def box(a: F32) -> F32:
-        out = cv2.boxFilter(a, cv2.CV_32F, ksize)[r:r + h, r:r + w]
-        return np.asarray(out, dtype=np.float32)
-
-    mean_i, mean_r = box(img), box(ref)
-    var_i = np.maximum(box(img * img) - mean_i * mean_i, 0.0)
-    var_r = np.maximum(box(ref * ref) - mean_r * mean_r, 0.0)
-    best = np.full((h, w), -np.inf, dtype=np.float32)
-    best_s = np.full((h, w), shift_min - 10, dtype=np.int32)
-    left = np.full((h, w), -np.inf, dtype=np.float32)
-    right = np.full((h, w), -np.inf, dtype=np.float32)
-    prev = np.full((h, w), -np.inf, dtype=np.float32)
-    score = np.empty((h, w), dtype=np.float32)
-    product = np.zeros_like(img)
-    wp = w + 2 * r
-    for s in range(shift_min, shift_max + 1):
-        score.fill(-np.inf)
-        lo, hi = max(0, s), min(w, w + s)  # camera columns whose reference column exists
-        if lo < hi:
-            plo, phi = max(0, s), min(wp, wp + s)
-            np.multiply(img[:, plo:phi], ref[:, plo - s:phi - s], out=product[:, plo:phi])
-            cov = box(product)[:, lo:hi] - mean_i[:, lo:hi] * mean_r[:, lo - s:hi - s]
-            den = np.sqrt(var_i[:, lo:hi] * var_r[:, lo - s:hi - s])
-            with np.errstate(divide='ignore', invalid='ignore'):
-                score[:, lo:hi] = np.where(den > MIN_STD**2, cov / den, -np.inf)
-        np.copyto(right, score, where=best_s == s - 1)
-        better = score > best
-        np.copyto(best, score, where=better)
-        np.copyto(best_s, s, where=better)
-        np.copyto(left, prev, where=better)
-        np.copyto(right, -np.inf, where=better)
-        prev, score = score, prev
-    return _refine(best, best_s, left, right, min_score)
-
-
-def _refine(best: F32, best_s: NDArray[np.int32], left: F32, right: F32,
-            min_score: float) -> tuple[F32, F32]:
-    ok = np.isfinite(best) & np.isfinite(left) & np.isfinite(right) & (best >= min_score)
+    padded = np.pad(costs, ((r, r), (r, r), (0, 0)), mode='edge')
+    column: NDArray[np.int64] = np.zeros((h, w, len(shifts)), np.int64)
+    for dy in range(window):
+        for dx in range(window):
+            column += padded[dy:dy + h, dx:dx + w]
+    bits = window * window * (CENSUS_WINDOW[0] * CENSUS_WINDOW[1] - 1)
+    kb = np.argmin(column, axis=2)
+    cb = np.take_along_axis(column, kb[..., None], 2)[..., 0]
+    score = (1.0 - 2.0 * cb / bits).astype(np.float32)
+    k = np.arange(len(shifts))[None, None, :]
+    second = np.where(np.abs(k - kb[..., None]) > 1, column, 1 << 30).min(axis=2)
+    # the reference side: for each reference column, the shift of its lowest sum
+    ref_k = np.full((h, wr), -1)
+    ref_min = np.full((h, wr), 1 << 30)
+    for x in range(w):
+        for i in range(len(shifts)):
+            if inside[x, i]:
+                better = column[:, x, i] < ref_min[:, xs[x, i]]
+                ref_min[better, xs[x, i]] = column[better, x, i]
+                ref_k[better, xs[x, i]] = i
+    xr = np.arange(w)[None, :] - shifts[kb] + margin
+    ok_ref = (xr >= 0) & (xr < wr)
+    back = np.take_along_axis(ref_k, np.clip(xr, 0, wr - 1), 1)
+    ok = (kb > 0) & (kb < len(shifts) - 1) & (score >= min_score) & ok_ref & \
+        (np.abs(back - kb) <= 1) & (second - cb >= uniqueness * second)
+    kc = np.clip(kb, 1, len(shifts) - 2)
+    left = np.take_along_axis(column, (kc - 1)[..., None], 2)[..., 0].astype(np.float64)
+    right = np.take_along_axis(column, (kc + 1)[..., None], 2)[..., 0].astype(np.float64)
+    curve = left - 2 * cb + right
     with np.errstate(divide='ignore', invalid='ignore'):
-        curv = left - 2 * best + right
-        delta = np.clip(np.where(curv < 0, 0.5 * (left - right) / curv, 0.0), -0.5, 0.5)
-    shift = np.where(ok, best_s + delta, np.nan).astype(np.float32)
-    return shift, np.where(np.isfinite(best), best, np.nan).astype(np.float32)
-
-
-def match_rows_reference(image: NDArray[np.generic], reference: NDArray[np.generic], *,
-                         shift_min: int, shift_max: int, window: int = 9,
-                         min_score: float = 0.5) -> tuple[F32, F32]:
-    """Direct per-pixel ZNCC (slow; the definition :func:`match_rows` must reproduce).
-
-    Same arguments and results as :func:`match_rows`; windows are read with reflected
-    borders (OpenCV's BORDER_REFLECT), so the two agree everywhere.
-    """
-    _check_pair(image, reference, window)
-    r = window // 2
-    img = np.pad(np.asarray(image, dtype=np.float64), r, mode='symmetric')
-    ref = np.pad(np.asarray(reference, dtype=np.float64), r, mode='symmetric')
-    h, w = np.shape(image)
-    n = shift_max - shift_min + 1
-    scores = np.full((n, h, w), -np.inf)
-    for y in range(h):
-        for x in range(w):
-            a = img[y:y + window, x:x + window].ravel()
-            a = a - a.mean()
-            for k, s in enumerate(range(shift_min, shift_max + 1)):
-                if not 0 <= x - s < w:
-                    continue
-                b = ref[y:y + window, x - s:x - s + window].ravel()
-                b = b - b.mean()
-                den = math.sqrt(float(a @ a) * float(b @ b)) / window**2
-                if den > MIN_STD**2:
-                    scores[k, y, x] = float(a @ b) / window**2 / den
-    k_best = np.argmax(scores, axis=0)
-    best = np.take_along_axis(scores, k_best[None], 0)[0]
-    pad = np.full((1, h, w), -np.inf)
-    padded = np.concatenate([pad, scores, pad])
-    left = np.take_along_axis(padded, k_best[None], 0)[0]
-    right = np.take_along_axis(padded, k_best[None] + 2, 0)[0]
-    return _refine(best.astype(np.float32), (k_best + shift_min).astype(np.int32),
-                   left.astype(np.float32), right.astype(np.float32), min_score)
+        delta = np.clip(np.where(curve > 0, 0.5 * (left - right) / curve, 0.0), -0.5, 0.5)
+    shift = np.where(ok, shift_min + kb + delta, np.nan).astype(np.float32)
+    return shift, score
 
 
 def speckle_depth(image: NDArray[np.generic], reference: NDArray[np.generic], *,
                   focal: float, baseline: float, reference_depth: float,
                   depth_min: float = 0.3, depth_max: float = 5.0, window: int = 9,
-                  min_score: float = 0.5) -> tuple[F32, F32]:
+                  min_score: float = 0.42, uniqueness: float = 0.05,
+                  matcher: SpeckleMatcher | None = None) -> tuple[F32, F32]:
     """Depth of a speckle image against its reference.
 
     Args:
         image: (H, W) grey camera image of the dot pattern.
-        reference: (H, W) grey image of the pattern on a plane at ``reference_depth``.
+        reference: (H, W + 2 m) grey image of the pattern on a plane at
+            ``reference_depth`` (``m`` extra columns on each side, possibly 0).
         focal: Camera focal length fx in pixels.
         baseline: Projector x offset from the camera in metres (signed; projector centre
             at (baseline, 0, 0) in the camera frame).
         reference_depth: Depth of the reference plane, metres.
         depth_min: Nearest depth searched, metres.
         depth_max: Farthest depth searched, metres.
-        window: Odd correlation window side.
-        min_score: Minimum ZNCC.
+        window: Odd side of the box the census distances are summed over.
+        min_score: See :func:`match_speckle`.
+        uniqueness: See :func:`match_speckle`.
+        matcher: A :class:`SpeckleMatcher` to reuse (it keeps the reference's census).
 
     Returns:
-        (depth, confidence): (H, W) float32 metres (NaN unknown) and the ZNCC score
-        clipped to [0, 1] (0 where invalid).
+        (depth, confidence): (H, W) float32 metres (NaN unknown) and the match score
+        clipped to [0, 1] (0 where there is no depth).
     """
     lo, hi = shift_range(focal, baseline, reference_depth, depth_min, depth_max)
-    shift, score = match_rows(image, reference, shift_min=lo, shift_max=hi, window=window,
-                              min_score=min_score)
-    depth = shift_to_depth(shift, focal, baseline, reference_depth)
-    with np.errstate(invalid='ignore'):
-        depth[(depth < depth_min) | (depth > depth_max)] = np.nan
-    conf = np.where(np.isfinite(depth), np.clip(np.nan_to_num(score), 0, 1), 0)
-    return depth, conf.astype(np.float32)
+    shift, score = (matcher or SpeckleMatcher()).match(
+        image, reference, shift_min=lo, shift_max=hi, window=window, min_score=min_score,
+        uniqueness=uniqueness)
+    depth = np.empty_like(shift)
+    confidence = np.empty_like(shift)
+    _depth_kernel(shift, score, focal * baseline, 1.0 / reference_depth, depth_min, depth_max,
+                  depth, confidence)
+    return depth, confidence
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _depth_kernel(shift: F32, score: F32, fb: float, inv_ref: float, depth_min: float,
+                  depth_max: float, depth: F32, confidence: F32) -> None:
+    """Depth of each shift (:func:`shift_to_depth`), NaN outside [depth_min, depth_max],
+    and the score clipped to [0, 1] as the confidence (0 without a depth)."""
+    h, w = shift.shape
+    for y in numba.prange(h):
+        for x in range(w):
+            inv = inv_ref + shift[y, x] / fb  # NaN stays NaN
+            z = 1.0 / inv if inv > 0.0 else np.nan
+            if not (depth_min <= z <= depth_max):
+                depth[y, x] = np.nan
+                confidence[y, x] = 0.0
+                continue
+            depth[y, x] = z
+            confidence[y, x] = min(max(score[y, x], 0.0), 1.0)
 
 
 class SpeckleReference:
@@ -232,7 +450,9 @@ class SpeckleReference:
                                      'file OpenCV can read')
             self._image = image.astype(np.float32)
             self._key = key
-        if self._image.shape != shape:
-            raise InputFileError(f'speckle_reference {path!r} is {self._image.shape[1]}x'
-                                 f'{self._image.shape[0]}, images are {shape[1]}x{shape[0]}')
+        rh, rw = self._image.shape
+        if rh != shape[0] or rw < shape[1] or (rw - shape[1]) % 2:
+            raise InputFileError(f'speckle_reference {path!r} is {rw}x{rh}; images are '
+                                 f'{shape[1]}x{shape[0]}: it needs their rows and their '
+                                 'columns plus as many extra on each side')
         return self._image

@@ -20,8 +20,9 @@ topic                                 type                       content
 ====================================  =========================  ===============================
 
 The scene is static, so the ground truth of a sequence also holds for the speckle images.
-The speckle reference (the dot pattern on a plane at ``reference_depth`` m) is written
-beside the bag as ``speckle_reference.png``; the configuration is stored in the bag's
+The speckle reference (the dot pattern on a plane at ``reference_depth`` m, seen by the
+camera widened by :data:`REFERENCE_MARGIN` columns on each side) is written beside the bag
+as ``speckle_reference.png``; the configuration is stored in the bag's
 metadata (``custom_data``, key :data:`CONFIG_KEY`).
 """
 
@@ -52,6 +53,8 @@ from depth_nodes.tools.signals import stop_requested
 NAMESPACE = '/sl'
 CONFIG_KEY = 'depth_nodes.sim.structured_light'
 REFERENCE_FILE = 'speckle_reference.png'
+#: Extra columns of the speckle reference on each side of the camera's width.
+REFERENCE_MARGIN = 64
 COMPRESSION_LEVEL = 19
 
 
@@ -176,7 +179,11 @@ def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfi
             put('projector/camera_info',
                 model_to_camera_info(proj, _header(stamp, proj.frame_id)), stamp)
     if config.speckle_frames:
-        ref_sim = ProjectorCameraSim(config.sim, reference_plane_scene(config.reference_depth))
+        # the reference is wider than the camera's images (REFERENCE_MARGIN columns each
+        # side, the same intrinsics otherwise): the dots that near and far surfaces at the
+        # image's sides show are in it
+        wide = dataclasses.replace(config.sim, width=config.sim.width + 2 * REFERENCE_MARGIN)
+        ref_sim = ProjectorCameraSim(wide, reference_plane_scene(config.reference_depth))
         reference = ref_sim.render(dots, noise_seed=999, noise_sigma=config.sim.noise_sigma / 2)
         cv2.imwrite(str(Path(path) / REFERENCE_FILE), reference[0])
     return count

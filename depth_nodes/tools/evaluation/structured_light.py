@@ -36,7 +36,9 @@ from numpy.typing import NDArray
 from depth_nodes.core.structured_light import (
     PatternSet,
     ProjectorGeometry,
+    SpeckleMatcher,
     camera_rays,
+    shift_range,
     speckle_depth,
     triangulate_columns,
 )
@@ -51,6 +53,8 @@ MIN_MODULATION = 4.0
 OPENCV_WHITE_THRESHOLD = 5
 #: Depth range searched by the speckle matcher in the figures (the bundled scene: 0.8-1.8 m).
 SPECKLE_DEPTH_RANGE = (0.5, 3.0)
+#: The speckle matcher's box side in the figures (the node's default).
+SPECKLE_WINDOW = 9
 
 
 def opencv_available() -> bool:
@@ -211,14 +215,16 @@ def evaluate_structured_light_bag(path: str | Path, *, opencv: bool = True) -> S
             rows[name] = [SLScores(name, note='unavailable: cv2.structured_light needs the '
                                    'opencv-contrib wheel')]
     if bag.speckle and bag.reference is not None and bag.sequences:
-        name = 'speckle (this package, window 11)'
+        name = f'speckle (this package, window {SPECKLE_WINDOW})'
+        matcher = SpeckleMatcher()
         for image in bag.speckle:
             start = time.perf_counter()
             depth, _ = speckle_depth(image, bag.reference, focal=bag.camera.K[0, 0],
                                      baseline=float(geometry.centre[0]),
                                      reference_depth=cfg.reference_depth,
                                      depth_min=SPECKLE_DEPTH_RANGE[0],
-                                     depth_max=SPECKLE_DEPTH_RANGE[1], window=11)
+                                     depth_max=SPECKLE_DEPTH_RANGE[1], window=SPECKLE_WINDOW,
+                                     matcher=matcher)
             ms = (time.perf_counter() - start) * 1e3
             rows.setdefault(name, []).append(score(name, None, depth, bag.sequences[0].gt, ms))
     for name, scores in rows.items():
@@ -253,7 +259,8 @@ class SLBench:
                  f'{self.frames} frames, median of {self.repeats} runs, OpenCV threads '
                  f'{cv2.getNumThreads()}']
         for name, ms in self.times_ms.items():
-            lines.append(f'  {name:<58}{ms:9.1f} ms')
+            rate = f'  {1000 / ms:6.1f} frames/s' if name.startswith('speckle') else ''
+            lines.append(f'  {name:<58}{ms:9.1f} ms{rate}')
         for name, note in self.notes.items():
             lines.append(f'  {name:<58}{note}')
         return '\n'.join(lines)
@@ -287,10 +294,15 @@ def bench_structured_light(path: str | Path, *, repeats: int = 10) -> SLBench:
     fns['node: messages in -> depth, points2, confidence out'] = node_fn
     if bag.speckle and bag.reference is not None:
         ref = bag.reference
-        fns['speckle (core, one image, window 11)'] = lambda: speckle_depth(
-            bag.speckle[0], ref, focal=bag.camera.K[0, 0], baseline=float(geometry.centre[0]),
-            reference_depth=cfg.reference_depth, depth_min=SPECKLE_DEPTH_RANGE[0],
-            depth_max=SPECKLE_DEPTH_RANGE[1], window=11)
+        matcher = SpeckleMatcher()
+        lo, hi = shift_range(bag.camera.K[0, 0], float(geometry.centre[0]),
+                             cfg.reference_depth, *SPECKLE_DEPTH_RANGE)
+        fns[f'speckle (core, one image, window {SPECKLE_WINDOW}, {hi - lo + 1} shifts)'] = \
+            lambda: speckle_depth(
+                bag.speckle[0], ref, focal=bag.camera.K[0, 0],
+                baseline=float(geometry.centre[0]), reference_depth=cfg.reference_depth,
+                depth_min=SPECKLE_DEPTH_RANGE[0], depth_max=SPECKLE_DEPTH_RANGE[1],
+                window=SPECKLE_WINDOW, matcher=matcher)
     try:
         times = median_ms(fns, repeats)
     finally:
