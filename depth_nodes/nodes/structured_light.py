@@ -62,7 +62,6 @@ from depth_nodes.core.structured_light.params import StructuredLightParams
 from depth_nodes.core.structured_light.reconstruct import reconstruct
 from depth_nodes.core.structured_light.speckle import SpeckleMatcher, SpeckleReference
 from depth_nodes.errors import (
-    ArgumentError,
     CalibrationError,
     ConfigError,
     InputFileError,
@@ -71,17 +70,15 @@ from depth_nodes.errors import (
 from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec, specs_from
+from depth_nodes.ros.params import (
+    IMAGE_TRANSPORT,
+    NodeParameters,
+    ParamSpec,
+    specs_from,
+    validated,
+)
 from depth_nodes.ros.pointcloud import build_pointcloud
 from depth_nodes.ros.sync import stamp_to_ns
-
-
-def _cross_check(values: Mapping[str, Any]) -> str | None:
-    try:
-        _settings(values).validate()
-    except ArgumentError as exc:
-        return str(exc)
-    return None
 
 
 def _settings(values: Mapping[str, Any]) -> StructuredLightParams:
@@ -108,7 +105,7 @@ class StructuredLightNode(DepthNode):
 
     def __init__(self, node_name: str = 'structured_light', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.params = NodeParameters(self, PARAMETERS, _cross_check)
+        self.params = NodeParameters(self, PARAMETERS, validated(_settings))
         self.queue_size = int(self.params.values['queue_size'])
         self.assembler = SequenceAssembler()
         self.projector_info: CameraInfo | None = None

@@ -52,7 +52,14 @@ from depth_nodes.errors import ArgumentError, CalibrationError, MessageError
 from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model, model_to_camera_info
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode, run_node
-from depth_nodes.ros.params import THREADS, NodeParameters, ParamSpec, one_of, specs_from
+from depth_nodes.ros.params import (
+    THREADS,
+    NodeParameters,
+    ParamSpec,
+    one_of,
+    specs_from,
+    validated,
+)
 from depth_nodes.ros.pointcloud import build_pointcloud
 from depth_nodes.ros.transport import decode_image
 from depth_nodes.ros.workers import use_threads
@@ -87,14 +94,6 @@ def _settings(values: Mapping[str, Any]) -> ToFParams:
     return ToFParams(**{name: values[name] for name in SETTINGS})
 
 
-def _cross_check(values: Mapping[str, Any]) -> str | None:
-    try:
-        _settings(values).validate()
-    except ArgumentError as exc:
-        return str(exc)
-    return None
-
-
 def _camera(info: Any) -> CameraModel:
     model = camera_info_to_model(info).binned()
     return model
@@ -116,7 +115,7 @@ class ToFNode(DepthNode):
 
     def __init__(self, node_name: str = 'tof', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.params = NodeParameters(self, PARAMETERS, _cross_check)
+        self.params = NodeParameters(self, PARAMETERS, validated(_settings))
         self.decoder = ToFDecoder()
         self._cameras = InfoCache(_camera)
         self.pub_depth = self.add_output(Image, 'depth/image_rect')

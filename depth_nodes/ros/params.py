@@ -29,7 +29,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from depth_nodes.core.settings import Rule, problem, rules
-from depth_nodes.errors import ConfigError
+from depth_nodes.errors import ArgumentError, ConfigError
 from depth_nodes.ros.transport import TRANSPORTS
 
 #: Returns None when a value is acceptable, else the reason it is not.
@@ -166,6 +166,19 @@ def specs_from(params: type, names: tuple[str, ...] | list[str], *,
     settings (default, description and rule)."""
     table = {name: (default, rule) for name, default, rule in rules(params)}
     return [spec_of(name, *table[name], prefix=prefix) for name in names]
+
+
+def validated(build: Callable[[Mapping[str, Any]], Any]) -> CrossCheck:
+    """The cross-check of a node whose settings make a core ``*Params``: ``build`` makes it
+    from a parameter snapshot, and its ``validate()`` error is the reason a change is
+    refused."""
+    def check(values: Mapping[str, Any]) -> str | None:
+        try:
+            build(values).validate()
+        except ArgumentError as exc:
+            return str(exc)
+        return None
+    return check
 
 
 def one_of(choices: tuple[Any, ...] | list[Any]) -> Check:

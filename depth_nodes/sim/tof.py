@@ -114,8 +114,8 @@ class ToFSimConfig:
             (self.full_well > 0 and self.read_noise >= 0, 'full_well > 0, read_noise >= 0'),
             (self.supersample >= 1 and self.emitter_step >= 1,
              'supersample and emitter_step must be >= 1'),
-            (self.n_frames >= 0 and self.frame_rate_hz > 0,
-             'n_frames >= 0 and frame_rate_hz > 0'),
+            (self.n_frames >= 1, f'n_frames must be >= 1, got {self.n_frames}'),
+            (self.frame_rate_hz > 0, 'frame_rate_hz must be positive'),
         ]
         for ok, why in checks:
             if not ok:

@@ -81,6 +81,7 @@ def test_noise_differs_between_frames_and_the_scene_does_not() -> None:
     ({'contrast': 0.0}, 'contrast must be in'),
     ({'frequencies_mhz': (80.0, 80.0)}, 'must differ'),
     ({'distortion': (0.1,)}, 'distortion needs the 5 plumb_bob'),
+    ({'n_frames': 0}, 'n_frames must be >= 1, got 0'),
 ])
 def test_bad_configurations_are_refused(change: dict[str, object], message: str) -> None:
     with pytest.raises(ConfigError, match=message):

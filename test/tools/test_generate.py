@@ -129,11 +129,13 @@ def test_generate_cli_errors(tmp_path: Path) -> None:
         "depth-nodes generate: error: unknown preset 'nope' (presets: stereo_vga, "
         'stereo_qvga_color, stereo_qvga_fisheye, structured_light_vga, tof_vga, bad_inputs, '
         'all)')
-    result = run_cli(['generate', str(tmp_path / 'x'), '--preset', 'stereo_qvga_color',
-                      '--frames', '0'])
-    assert result.returncode == 1
-    assert 'n_frames' in result.stderr
-    assert 'Traceback' not in result.stderr
+    for preset in ('stereo_qvga_color', 'tof_vga'):
+        result = run_cli(['generate', str(tmp_path / 'x'), '--preset', preset,
+                          '--frames', '0'])
+        assert result.returncode == 1
+        assert 'n_frames' in result.stderr
+        assert 'Traceback' not in result.stderr
+        assert not (tmp_path / 'x').exists()
 
 
 def test_generate_cli_writes_a_readable_bag(tmp_path: Path) -> None:

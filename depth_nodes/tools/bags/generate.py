@@ -32,7 +32,7 @@ from depth_nodes.errors import ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.sim import StereoFrame, StereoSimConfig, simulate_stereo
+from depth_nodes.sim import StereoFrame, StereoSimConfig, simulate_stereo, validate_config
 from depth_nodes.tools.bags.io import BagWriter
 from depth_nodes.tools.signals import stop_requested
 
@@ -100,7 +100,12 @@ def write_stereo_bag(
     overwrite: bool = False,
     on_frame: Callable[[int], None] | None = None,
 ) -> int:
-    """Simulate ``config`` and write the bag at ``path``; returns the number of messages."""
+    """Simulate ``config`` and write the bag at ``path``; returns the number of messages.
+
+    Raises:
+        SimConfigError: An invalid configuration (checked before anything is written).
+    """
+    validate_config(config)
     count = 0
     with BagWriter(path, overwrite=overwrite, compression_level=COMPRESSION_LEVEL) as writer:
         writer.set_custom_data(CONFIG_KEY, json.dumps(dataclasses.asdict(config)))
