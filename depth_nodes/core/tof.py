@@ -22,10 +22,10 @@ Then, per pixel of the raw image:
   both, a range in between that belongs to neither (:func:`remove_flying_pixels`). It is
   removed when its range lies between its two neighbours' along one of the four
   directions and those two are more than ``flying_pixel_threshold`` plus their noise
-  apart beyond what the slopes on either side explain, or when it differs from a neighbour by more than ``jump_edge_threshold`` of the
-  range: both sides of a depth edge go, also the grazing edge of an object, where light
-  bounced off the surface behind it outweighs the weak direct return. A surface seen at a
-  slant stays;
+  apart beyond what the slopes on either side explain, or when it differs from a
+  neighbour by more than ``jump_edge_threshold`` of the range: both sides of a depth edge
+  go, also the grazing edge of an object, where light bounced off the surface behind it
+  outweighs the weak direct return. A surface seen at a slant stays;
 * **confidence** in [0, 1]: the depth noise expected from shot noise (samples taken as
   counts of ``electrons_per_count``), relative to ``noise_reference`` of the range, times
   the agreement of the frequencies after unwrapping (a wrong wrap count, multipath or a
