@@ -141,12 +141,15 @@ def unambiguous_range(frequencies_mhz: Any) -> float:
     return SPEED_OF_LIGHT / (2 * float(g) * 1000)
 
 
-def _check_samples(samples: NDArray[Any], planes: int) -> NDArray[np.float32]:
+def _check_samples(samples: NDArray[Any], planes: int) -> NDArray[Any]:
+    """The samples as the phasor kernel reads them: a driver's uint16 counts or float32 as
+    they are (no per-frame copy), anything else as float32."""
     arr = np.asarray(samples)
     if arr.ndim != 3 or arr.shape[0] != planes:
         raise ArgumentError(f'samples must be ({planes}, H, W) (frequencies x phase steps '
                             f'planes), got shape {arr.shape}')
-    return np.ascontiguousarray(arr, dtype=np.float32)
+    keep = arr.dtype if arr.dtype in (np.uint16, np.float32) else np.float32
+    return np.ascontiguousarray(arr, dtype=keep)
 
 
 #: atan(x) = x * p(x^2) on [0, 1], p's coefficients fitted here by least squares (degree
@@ -177,7 +180,7 @@ def phase_of(im: float, re: float) -> float:
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _phasor_kernel(samples: NDArray[np.float32], n_freq: int, steps: int,
+def _phasor_kernel(samples: NDArray[Any], n_freq: int, steps: int,
                    saturation: float, phase: F32, amplitude: F32, offset: F32,
                    saturated: NDArray[np.bool_]) -> None:
     _, height, width = samples.shape

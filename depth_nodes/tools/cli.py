@@ -70,10 +70,11 @@ def _generate(args: argparse.Namespace) -> int:
                 tof_config = dataclasses.replace(tof_config, n_frames=args.frames)
             count = tof.write_tof_bag(path, tof_config, overwrite=args.force)
             size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
-            print(f'{path}: {name}, {tof_config.width}x{tof_config.height}, '
-                  f'{tof_config.n_frames} frames of {len(tof_config.frequencies_mhz)} x '
-                  f'{tof_config.phase_steps} correlation planes, {count} messages, '
-                  f'{size:.1f} MB')
+            frames = (f'{tof_config.n_frames} frames' if not signals.stop_requested() else
+                      'frames up to the signal')
+            print(f'{path}: {name}, {tof_config.width}x{tof_config.height}, {frames} of '
+                  f'{len(tof_config.frequencies_mhz)} x {tof_config.phase_steps} correlation '
+                  f'planes, {count} messages, {size:.1f} MB')
             if signals.stop_requested():
                 break
             continue
