@@ -27,11 +27,23 @@ package's 2-core machine; the cause was not pinned down: not aliasing, error mod
 fast-math). Run from several threads at once, this needs a thread-safe numba threading
 layer (OpenMP or TBB, see ``matcher.py``), and each thread set to one numba thread.
 
+NO_NRT: the kernels that take a view of an array for every pixel (``cost[y, x]``,
+``total[x]``) and are not parallel loop bodies (the selections, the cost rows) are
+compiled with numba's ``_nrt=False``: no reference counting. With it, numba increments and
+decrements the parent array's count (an atomic operation) around every view it cannot
+prove short-lived; measured with ``perf`` on one thread (640x480, 128 disparities, 8
+paths), those two calls took 19 % of a frame. Such a kernel cannot allocate: its scratch
+comes from its caller. ``_nrt`` is an internal option of numba (pinned in
+``requirements/constraints.txt``).
+
 P2 may adapt to the image: P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / scale)), with the
 intensity step truncated to an integer (exact for camera images), looked up in a table.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 import numpy as np
 from numba import njit, prange
@@ -44,6 +56,7 @@ SENTINEL = 32768
 
 U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
+_F = TypeVar('_F', bound=Callable[..., Any])
 
 #: Path directions (dx, dy) swept top to bottom; the bottom-to-top sweep mirrors them.
 #: 4 paths = 2 horizontal + 2 of these, 8 = 2 + 6, 16 = 2 + 14. 5 paths = 2 horizontal + these
@@ -58,6 +71,12 @@ VERTICAL_DIRECTIONS = {
 #: stored, so the (H, W, D) uint16 volume and the second pass over the cost volume are saved
 #: (the directions of OpenCV's MODE_SGBM; 8 paths are its MODE_HH).
 SINGLE_PASS = frozenset({5})
+
+
+def no_nrt_kernel(*, parallel: bool = False) -> Callable[[_F], _F]:
+    """``njit(cache=True, nogil=True)`` without reference counting (see NO_NRT)."""
+    options: Any = {'cache': True, 'nogil': True, 'parallel': parallel, '_nrt': False}
+    return cast(Callable[[_F], _F], njit(**options))
 
 
 def p2_table(p1: int, p2: int, scale: float, levels: int = 65536) -> NDArray[np.int64]:

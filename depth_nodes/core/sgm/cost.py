@@ -29,12 +29,14 @@ from numba import njit, prange, types
 from numba.extending import intrinsic
 from numpy.typing import NDArray
 
+from depth_nodes.core.sgm.aggregate import no_nrt_kernel
 from depth_nodes.errors import ArgumentError
 
 #: Cost of a disparity whose right pixel lies outside the image.
 OUT_OF_RANGE_COST = 255
 
 U8 = NDArray[np.uint8]
+U16 = NDArray[np.uint16]
 U64 = NDArray[np.uint64]
 #: A census image: uint32 or uint64 (:func:`census_dtype`).
 Census = NDArray[np.unsignedinteger[Any]]
@@ -344,9 +346,21 @@ def _cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
                   use_bt: bool, truncation: int, out: U8) -> None:
     """:func:`_cost_rows` for uint8 images and a census of at most 32 bits (doubled
     intensities, see :func:`_pixel_costs_16`)."""
+    w = out.shape[1]
+    _cost_rows_16_into(census_l, census_rm, left, right_m, lo_l, hi_l, lo_rm, hi_rm, y0,
+                       min_disparity, census_weight, intensity_weight, use_bt, truncation,
+                       out, np.empty(w, np.uint16), np.empty(w, np.uint16))
+
+
+@no_nrt_kernel()
+def _cost_rows_16_into(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
+                       left: NDArray[np.int16], right_m: NDArray[np.int16],
+                       lo_l: NDArray[np.int16], hi_l: NDArray[np.int16],
+                       lo_rm: NDArray[np.int16], hi_rm: NDArray[np.int16], y0: int,
+                       min_disparity: int, census_weight: int, intensity_weight: int,
+                       use_bt: bool, truncation: int, out: U8, rm_lo: U16,
+                       rm_hi: U16) -> None:
     rows, w = out.shape[:2]
-    rm_lo = np.empty(w, np.uint16)
-    rm_hi = np.empty(w, np.uint16)
     for i in range(rows):
         y = y0 + i
         # the right census row as two 16-bit halves (mirrored like every right array)

@@ -22,6 +22,7 @@ from depth_nodes.core.cross_check import SPECKLE_SIZE, remove_speckles
 from depth_nodes.core.settings import check_settings, setting
 from depth_nodes.core.sgm import ranged
 from depth_nodes.core.sgm.aggregate import (
+    SENTINEL,
     SINGLE_PASS,
     VERTICAL_DIRECTIONS,
     new_line_buffers,
@@ -286,6 +287,7 @@ class SgmMatcher:
                 'workers': [{'rings': rings(), 'total': np.empty((w, n), np.uint16),
                              'ltr': np.empty((2, w, n), np.uint16),
                              'rtl': np.empty((2, w, n), np.uint16),
+                             'hlines': _lines(4, n),
                              'keys': np.empty(w, np.uint32),
                              'sample': np.empty((1, w, n), np.uint8),
                              'below': np.empty((chunk, w, n), np.uint8)}
@@ -510,6 +512,13 @@ def _border_cost(p: SgmParams, total: float, h: int, w: int) -> int:
     return min(254, max(1, round(p.border_cost * total / count)))
 
 
+def _lines(count: int, n: int) -> NDArray[np.uint16]:
+    """``count`` path lines of D + 2 entries, SENTINEL at both ends (``band_select``)."""
+    lines = np.empty((count, n + 2), np.uint16)
+    lines[:, 0] = lines[:, -1] = SENTINEL
+    return lines
+
+
 def _outputs(h: int, w: int, dirs: tuple[tuple[int, int], ...]) -> dict[str, Any]:
     """The buffers both searches share: the vertical directions' steps, the outputs."""
     return {'dxs': np.array([d[0] for d in dirs], np.int64),
@@ -670,7 +679,7 @@ class _Frame:
                             SUBPIXEL_MODES[p.subpixel], scratch['total'], scratch['ltr'],
                             scratch['rtl'], scratch['keys'], b['disparity'],
                             b['disparity_right'], b['ratio'], self.total, self.keep_total,
-                            upward, self.extrapolate, ring0)
+                            upward, self.extrapolate, ring0, scratch['hlines'])
 
             swept = 0
             if upward and band.reach > band.rows:  # the rows below, a few at a time,

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from depth_nodes.core.sgm.aggregate import (
     SENTINEL,
     _ring,
+    no_nrt_kernel,
     path_start,
     path_step,
     store_path,
@@ -225,8 +226,22 @@ def _ranged_cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uin
                          wid: I32, base: I64, out: U8) -> None:
     """``cost._cost_rows_16`` over the windows of rows y0 .. y0 + rows - 1."""
     w = census_l.shape[1]
-    rm_lo = np.empty(w, np.uint16)
-    rm_hi = np.empty(w, np.uint16)
+    _ranged_cost_rows_16_into(census_l, census_rm, left, right_m, lo_l, hi_l, lo_rm, hi_rm,
+                              y0, rows, min_disparity, n_disp, census_weight,
+                              intensity_weight, use_bt, truncation, lo, wid, base, out,
+                              np.empty(w, np.uint16), np.empty(w, np.uint16))
+
+
+@no_nrt_kernel()
+def _ranged_cost_rows_16_into(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
+                              left: NDArray[np.int16], right_m: NDArray[np.int16],
+                              lo_l: NDArray[np.int16], hi_l: NDArray[np.int16],
+                              lo_rm: NDArray[np.int16], hi_rm: NDArray[np.int16], y0: int,
+                              rows: int, min_disparity: int, n_disp: int,
+                              census_weight: int, intensity_weight: int, use_bt: bool,
+                              truncation: int, lo: I32, wid: I32, base: I64, out: U8,
+                              rm_lo: U16, rm_hi: U16) -> None:
+    w = census_l.shape[1]
     for y in range(y0, y0 + rows):
         for x in range(w):
             rm_lo[x] = np.uint16(census_rm[y, x] & np.uint32(0xFFFF))
@@ -252,7 +267,7 @@ def ranged_costs(inputs: CostInputs, y0: int, rows: int, lo: I32, wid: I32, base
            lo, wid, base, out)
 
 
-@njit(cache=True, nogil=True)
+@no_nrt_kernel()
 def ranged_best_cost_sum(cost: U8, lo: I32, wid: I32, base: I64, x_lo: int, x_hi: int,
                          row_step: int) -> float:
     """``cost.mean_best_cost``'s sum (every ``row_step``-th row, columns [x_lo, x_hi)),
@@ -383,7 +398,7 @@ def _ranged_horizontal(cost: U8, base: I64, lo: I32, wid: I32, image: F32, y: in
             out[t] = cur[t + 1]
 
 
-@njit(parallel=True, cache=True, nogil=True)
+@no_nrt_kernel(parallel=True)
 def ranged_select(cost: U8, base: I64, lo: I32, wid: I32, image: F32, partial: U16,
                   y0: int, rows: int, p1: int, p2: int, p2_table: I64, n_disp: int,
                   min_disparity: int, uniqueness: float, subpixel: int, total: U16,

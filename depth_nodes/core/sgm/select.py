@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from depth_nodes.core.sgm.aggregate import (
     _ring,
-    new_line,
+    no_nrt_kernel,
     path_start,
     path_step,
     store_path,
@@ -158,17 +158,18 @@ def _right_candidates(column: U16, xm0: int, k_lo: int, k_hi: int,
 
 @njit(cache=True, nogil=True, inline='always')
 def _horizontal_pair(cost: U8, image: F32, p1: int, p2: int, p2_table: NDArray[np.int64],
-                     y_a: int, y_b: int, y0: int, forward: bool, dst: U16) -> None:
+                     y_a: int, y_b: int, y0: int, forward: bool, dst: U16,
+                     lines: U16) -> None:
     """One horizontal path (left to right when ``forward``) along rows ``y_a`` and ``y_b``
     of ``cost`` at once (image rows y0 + y_a and y0 + y_b), into dst[0] and dst[1].
 
     Along a row every step waits for the previous step's minimum over d; two independent
     rows interleaved give the core work to do while it waits (about 20% faster than one
-    row at a time).
+    row at a time). ``lines``: (4, D + 2) uint16 scratch, SENTINEL at both ends of each.
     """
     n = cost.shape[2]
     w = cost.shape[1]
-    a_even, a_odd, b_even, b_odd = new_line(n), new_line(n), new_line(n), new_line(n)
+    a_even, a_odd, b_even, b_odd = lines[0], lines[1], lines[2], lines[3]
     best_a = best_b = 0
     for s in range(w):
         x = s if forward else w - 1 - s
@@ -192,14 +193,15 @@ def _horizontal_pair(cost: U8, image: F32, p1: int, p2: int, p2_table: NDArray[n
             row_b[d] = cur_b[d + 1]
 
 
-@njit(parallel=True, cache=True, nogil=True)
+@no_nrt_kernel(parallel=True)
 def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
                 dxs: NDArray[np.int64], dys: NDArray[np.int64], p1: int, p2: int,
                 p2_table: NDArray[np.int64], lb0: U16, lb1: U16, lb2: U16, mbuf: U16,
                 min_disparity: int, uniqueness: float, subpixel: int, total: U16,
                 left_to_right: U16, right_to_left: U16, keys: NDArray[np.uint32],
                 disparity: F32, disparity_right: F32, ratio: F32, total_out: U16,
-                store_total: bool, upward: bool, extrapolate: bool, ring0: int = 0) -> None:
+                store_total: bool, upward: bool, extrapolate: bool, ring0: int,
+                lines: U16) -> None:
     """The rest of SGM for one band of rows, bottom up, on one thread.
 
     For each row: (1) the upward paths (the downward ones mirrored) are added to the
@@ -239,6 +241,8 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
         upward: Run the upward directions (False for the
             :data:`~depth_nodes.core.sgm.aggregate.SINGLE_PASS` path counts).
         ring0: Rows the upward paths already went through (see above).
+        lines: (4, D + 2) uint16 scratch with SENTINEL at both ends of each line (this
+            kernel allocates nothing: ``aggregate.NO_NRT``).
         extrapolate: Select the left disparity over every disparity, also those whose
             right pixel is outside the image (their cells then hold a neutral cost, see
             ``cost.fill_outside``): the left border strip takes the disparity its
@@ -280,9 +284,9 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
             if pair == 0:  # (2) horizontal paths of this row and the next, both directions
                 b_next = max(b - 1, 0)
                 _horizontal_pair(cost, image, p1, p2, p2_table, b, b_next, y0, True,
-                                 left_to_right)
+                                 left_to_right, lines)
                 _horizontal_pair(cost, image, p1, p2, p2_table, b, b_next, y0, False,
-                                 right_to_left)
+                                 right_to_left, lines)
             for xr in range(w):  # (3) totals, left selection, right-view candidates
                 keys[xr] = np.uint32(0xFFFFFFFF)
             for x in range(w):
