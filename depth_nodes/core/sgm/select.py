@@ -124,6 +124,19 @@ def _add_rows_keyed_min(total: U16, a: U16, b: U16) -> int:
 
 
 @njit(cache=True, nogil=True, inline='always')
+def _sum_rows_keyed_min(total: U16, part: U16, a: U16, b: U16) -> int:
+    """total = part + a + b over every k, returning :func:`_keyed_min` of the result: the
+    partial sum is read where it is used, not copied into ``total`` first."""
+    best = np.uint32(0xFFFFFFFF)
+    for k in range(total.shape[0]):
+        i = np.uint64(k)
+        value = np.uint16(part[i] + a[i] + b[i])
+        total[i] = value
+        best = min(best, _key(value, k))
+    return int(best)
+
+
+@njit(cache=True, nogil=True, inline='always')
 def select_pixel(total: U16, key: int, k_lo: int, k_hi: int, subpixel: int,
                  uniqueness: float) -> tuple[float, float]:
     """Winner over k in [k_lo, k_hi]: (k + sub-pixel offset or NaN, best / second best).
@@ -258,7 +271,7 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
             ring = (ring0 + i) % 3
             cur_ring = _ring(lb0, lb1, lb2, ring)
             in_band = b < rows
-            for x in range(w):  # (1) upward paths + downward sum
+            for x in range(ndir and w):  # (1) upward paths + downward sum
                 out = total[x]
                 if in_band:
                     part = partial[b, x]
@@ -296,11 +309,19 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
                 k_lo = max(0, x - min_disparity - (w - 1))
                 k_hi = min(n - 1, x - min_disparity)
                 sel_lo, sel_hi = (0, n - 1) if extrapolate else (k_lo, k_hi)
+                # without upward paths here the total is the partial sum plus the
+                # horizontal paths, formed in the same pass (no copy of the partial first)
+                part = partial[b, x]
                 if sel_lo == 0 and sel_hi == n - 1:  # every disparity a candidate: one pass
-                    key = _add_rows_keyed_min(tot, ltr, rtl)
+                    key = (_add_rows_keyed_min(tot, ltr, rtl) if ndir else
+                           _sum_rows_keyed_min(tot, part, ltr, rtl))
                 else:
-                    for d in range(n):
-                        tot[d] += ltr[d] + rtl[d]
+                    if ndir:
+                        for d in range(n):
+                            tot[d] += ltr[d] + rtl[d]
+                    else:
+                        for d in range(n):
+                            tot[d] = part[d] + ltr[d] + rtl[d]
                     key = _keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
                 if store_total:
                     part = total_out[y, x]
