@@ -316,6 +316,22 @@ def _pixel_costs_16(cl_lo: np.uint16, cl_hi: np.uint16, rm_lo: NDArray[np.uint16
     cw = np.uint16(min(census_weight, 255))
     iw = np.uint16(min(intensity_weight, 255))
     top = np.uint16(254)
+    one = np.int16(1)
+    # one loop per combination of terms, with no branch inside: LLVM left the conditions
+    # in the loop (as masks on every load) when they were tested per k
+    if census_weight and intensity_weight and use_bt:
+        for k in range(k_lo, k_hi + 1):
+            xm = np.uint64(xm0 + k)  # unsigned: no negative-index wraparound check
+            bits = np.uint16(_popcount(np.uint16(cl_lo ^ rm_lo[xm]))
+                             + _popcount(np.uint16(cl_hi ^ rm_hi[xm])))
+            ir = right_m[xm]
+            d_left = max(zero, np.int16(max(np.int16(il - hi_rm[xm]),
+                                            np.int16(lo_rm[xm] - il))))
+            d_right = max(zero, np.int16(max(np.int16(ir - hi_l), np.int16(lo_l - ir))))
+            term = np.uint16(np.uint16(min(min(d_left, d_right), cap) + one) >> np.uint16(1))
+            value = np.uint16(min(np.uint16(cw * bits), top) + min(np.uint16(iw * term), top))
+            out[np.uint64(k)] = np.uint8(min(value, top))
+        return
     for k in range(k_lo, k_hi + 1):
         xm = np.uint64(xm0 + k)  # unsigned: no negative-index wraparound check
         value = np.uint16(0)
@@ -332,7 +348,7 @@ def _pixel_costs_16(cl_lo: np.uint16, cl_hi: np.uint16, rm_lo: NDArray[np.uint16
                 diff = min(d_left, d_right)
             else:
                 diff = np.int16(abs(np.int16(il - ir)))
-            term = np.uint16(np.uint16(min(diff, cap) + np.int16(1)) >> np.uint16(1))
+            term = np.uint16(np.uint16(min(diff, cap) + one) >> np.uint16(1))
             value = np.uint16(value + min(np.uint16(iw * term), top))
         out[np.uint64(k)] = np.uint8(min(value, top))
 
