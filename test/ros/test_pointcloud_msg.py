@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import array
+
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
@@ -11,7 +13,14 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 from depth_nodes.errors import MessageError
-from depth_nodes.ros.pointcloud import build_pointcloud, read_pointcloud
+from depth_nodes.ros.image import set_message_bytes
+from depth_nodes.ros.pointcloud import (
+    _layout,
+    build_pointcloud,
+    pack_points,
+    pack_points_reference,
+    read_pointcloud,
+)
 
 H, W = 4, 6
 
@@ -180,3 +189,35 @@ def test_empty_cloud() -> None:
     out = read_pointcloud(msg)
     assert out['x'].shape == (0, 5)
     assert len(msg.data) == 0
+
+
+@pytest.mark.parametrize('extra', [False, True])
+@pytest.mark.parametrize(('use_rgb', 'pad', 'offsets', 'step'), LAYOUTS)
+def test_packing_kernel_equals_numpy_reference(use_rgb: bool, pad: bool,
+                                               offsets: dict[str, int], step: int,
+                                               extra: bool) -> None:
+    """The numba packing writes the bytes the numpy structured array does, padding zero
+    included, from float32 and float64 points (cast on the way, as numpy casts)."""
+    xyz, rgb, conf = _inputs(3)
+    fields_extra = {'confidence': conf, 'depth_std': conf.astype(np.float64) * 2} if extra \
+        else {}
+    fields, layout_step = _layout(use_rgb, pad, list(fields_extra))
+    assert dict(fields) == {**offsets, **dict(fields[len(offsets):])}
+    for points in (xyz, xyz.astype(np.float64) * 1.1):
+        got = pack_points(points, rgb if use_rgb else None, fields_extra, fields, layout_step)
+        want = pack_points_reference(points, rgb if use_rgb else None, fields_extra, fields,
+                                     layout_step)
+        assert got.typecode == 'B'
+        assert bytes(got) == want
+
+
+def test_message_keeps_its_data_array() -> None:
+    """The cloud's bytes go into the message as the array they were written in (no copy)."""
+    xyz, rgb, _ = _inputs()
+    data = array.array('B', b'\x01\x02\x03')
+    msg = PointCloud2()
+    set_message_bytes(msg, data)
+    assert msg.data is data
+    cloud = build_pointcloud(xyz, None, rgb=rgb)
+    assert isinstance(cloud.data, array.array)
+    assert bytes(cloud.data) in serialize_message(cloud)  # what rclpy publishes
