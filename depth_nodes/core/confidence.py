@@ -30,6 +30,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from depth_nodes.core._validate import float_map, non_negative
@@ -138,6 +139,21 @@ def confidence_map(cost_ratio: Any, difference: Any, valid: Any, *, window: int 
         raise ArgumentError(f'filled_confidence must be in [0, 1], got {filled_confidence!r}')
     smooth_scale = non_negative('smoothness', terms.smoothness)
     outside_scale = non_negative('outside_scale', terms.outside_scale)
+    out = None if disparity is None else float_map('disparity', disparity, ratio.shape)
+    fill = None if filled is None else np.asarray(filled, dtype=np.bool_)
+    args = (ratio, diff, keep, window, support_window, scale, factor, smooth_scale,
+            outside_scale, out, fill)
+    if all(a is None or a.dtype == np.float32 for a in (ratio, diff, out)):
+        return _confidence_f32(*args)
+    return confidence_reference(*args)
+
+
+def confidence_reference(ratio: NDArray[Any], diff: NDArray[Any], keep: NDArray[np.bool_],
+                         window: int, support_window: int, scale: float, factor: float,
+                         smooth_scale: float, outside_scale: float,
+                         out: NDArray[Any] | None, fill: NDArray[np.bool_] | None) -> F32:
+    """:func:`confidence_map` in numpy on checked inputs (any float dtype; the reference
+    of the float32 kernels in the tests)."""
     distinct = (1.0 - np.clip(np.nan_to_num(ratio, nan=1.0), 0.0, 1.0)).astype(np.float32)
     if window > 1:
         distinct = _box(distinct, window)
@@ -146,8 +162,7 @@ def confidence_map(cost_ratio: Any, difference: Any, valid: Any, *, window: int 
     shared = distinct
     if support_window > 1:
         shared = shared * _box(keep.astype(np.float32), support_window)
-    if disparity is not None:
-        out = float_map('disparity', disparity, ratio.shape)
+    if out is not None:
         if smooth_scale > 0:
             shared = shared * _smoothness(out, smooth_scale)
         if outside_scale > 0:
@@ -155,8 +170,102 @@ def confidence_map(cost_ratio: Any, difference: Any, valid: Any, *, window: int 
             extrapolated = np.isnan(diff) & (outside > 0)
             agree = np.where(extrapolated, 1.0 / (1.0 + outside / outside_scale), agree)
     conf = np.where(keep, shared * agree, 0.0)
-    if filled is not None:
-        fill = np.asarray(filled, dtype=np.bool_)
+    if fill is not None:
         conf = np.where(fill & ~keep, factor * shared, conf)
     result: F32 = np.clip(conf, 0.0, 1.0).astype(np.float32)
     return result
+
+
+def _confidence_f32(ratio: F32, diff: F32, keep: NDArray[np.bool_], window: int,
+                    support_window: int, scale: float, factor: float, smooth_scale: float,
+                    outside_scale: float, out: F32 | None,
+                    fill: NDArray[np.bool_] | None) -> F32:
+    """:func:`confidence_reference` for float32 maps (what the node gets): two numba passes
+    around OpenCV's box filters, in float32 as numpy computes it, so the result is the
+    same bit for bit (tested). 7.5 ms at 640x480 in numpy, 2.5 ms this way."""
+    shape = ratio.shape
+    have_out = out is not None
+    disparity = out if out is not None else np.zeros((1, 1), np.float32)
+    smooth = have_out and smooth_scale > 0
+    distinct = np.empty(shape, np.float32)
+    keep_f = np.empty(shape, np.float32)
+    finite = np.empty(shape if smooth else (1, 1), np.float32)
+    values = np.empty(shape if smooth else (1, 1), np.float32)
+    _confidence_inputs(ratio, keep, disparity, smooth, distinct, keep_f, finite, values)
+    if window > 1:
+        distinct = _box(distinct, window)
+    support = _box(keep_f, support_window) if support_window > 1 else keep_f
+    count = _box(finite, SMOOTHNESS_WINDOW) if smooth else finite
+    sums = _box(values, SMOOTHNESS_WINDOW) if smooth else values
+    conf = np.empty(shape, np.float32)
+    _confidence_combine(distinct, diff, keep, support, support_window > 1, disparity, smooth,
+                        count, sums, np.float32(smooth_scale), have_out and outside_scale > 0,
+                        np.float32(outside_scale), np.float32(scale),
+                        fill if fill is not None else np.zeros((1, 1), np.bool_),
+                        fill is not None, np.float32(factor), conf)
+    return conf
+
+
+@njit(cache=True, nogil=True)
+def _confidence_inputs(ratio: F32, keep: NDArray[np.bool_], disparity: F32, smooth: bool,
+                       distinct: F32, keep_f: F32, finite: F32, values: F32) -> None:
+    """What the box filters average: 1 - clip(ratio) (NaN counting as 1), the kept pixels,
+    and for the smoothness the finite disparities and their values."""
+    h, w = ratio.shape
+    zero, one = np.float32(0.0), np.float32(1.0)
+    for y in range(h):
+        for x in range(w):
+            r = ratio[y, x]
+            r = one if np.isnan(r) else min(max(r, zero), one)
+            distinct[y, x] = one - r
+            keep_f[y, x] = one if keep[y, x] else zero
+            if smooth:
+                d = disparity[y, x]
+                ok = np.isfinite(d)
+                finite[y, x] = one if ok else zero
+                values[y, x] = d if ok else zero
+
+
+@njit(cache=True, nogil=True)
+def _confidence_combine(distinct: F32, diff: F32, keep: NDArray[np.bool_], support: F32,
+                        use_support: bool, disparity: F32, smooth: bool, count: F32,
+                        sums: F32, smooth_scale: np.float32, outside: bool,
+                        outside_scale: np.float32, scale: np.float32,
+                        fill: NDArray[np.bool_], use_fill: bool, factor: np.float32,
+                        conf: F32) -> None:
+    """The terms per pixel, multiplied in the reference's order (float32 products do not
+    associate)."""
+    h, w = distinct.shape
+    zero, one, half = np.float32(0.0), np.float32(1.0), np.float32(0.5)
+    big = np.float32(np.finfo(np.float32).max)
+    last = np.float32(w - 1)
+    for y in range(h):
+        for x in range(w):
+            d = diff[y, x]  # nan_to_num(diff, nan=inf): NaN -> inf, +-inf -> +-max
+            q = np.float32(np.inf) if np.isnan(d) else (
+                big if d == np.inf else (-big if d == -np.inf else d))
+            q = q / scale
+            agree = one / (one + q * q)
+            shared = distinct[y, x]
+            if use_support:
+                shared = shared * support[y, x]
+            if smooth:
+                v = disparity[y, x]
+                n = count[y, x]
+                deviation = zero
+                if np.isfinite(v) and n > zero:
+                    deviation = abs(v - sums[y, x] / n)
+                t = deviation / smooth_scale
+                shared = shared * (one / (one + t * t))
+            if outside:
+                v = disparity[y, x]
+                xr = np.floor(np.float32(x) - v + half)
+                beyond = max(-xr, xr - last)
+                distance = zero if np.isnan(beyond) else (
+                    big if beyond == np.inf else max(beyond, zero))
+                if np.isnan(d) and distance > zero:
+                    agree = one / (one + distance / outside_scale)
+            value = shared * agree if keep[y, x] else zero
+            if use_fill and fill[y, x] and not keep[y, x]:
+                value = factor * shared
+            conf[y, x] = min(max(value, zero), one)

@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from depth_nodes.core.confidence import ConfidenceTerms
+from depth_nodes.core.confidence import (
+    DEFAULT_TERMS,
+    PLAIN_TERMS,
+    ConfidenceTerms,
+    confidence_reference,
+)
 from depth_nodes.core.cross_check import (
     INVALID,
     MISMATCH,
@@ -126,6 +131,44 @@ class TestKernelsAgainstReferences:
         else:  # every hole of a row with a kept pixel is filled
             assert np.isfinite(got[np.arange(19) != 3]).all()
             assert np.isnan(got[3]).all()
+
+
+    @pytest.mark.parametrize('seed', [0, 1])
+    @pytest.mark.parametrize('terms', [DEFAULT_TERMS, PLAIN_TERMS,
+                                       ConfidenceTerms(support_window=1, smoothness=0.5,
+                                                       outside_scale=0.0)])
+    def test_confidence(self, seed: int, terms: ConfidenceTerms) -> None:
+        """The float32 confidence passes against numpy, bit for bit: NaN and infinite
+        ratios, differences and disparities, extrapolated pixels, filled pixels."""
+        rng = np.random.default_rng(seed)
+        shape = (21, 37)
+        ratio = rng.uniform(-0.2, 1.2, shape).astype(np.float32)
+        diff = rng.uniform(0, 3, shape).astype(np.float32)
+        disp = rng.uniform(-5, 45, shape).astype(np.float32)
+        for array, values in ((ratio, [np.nan, np.inf, -np.inf]),
+                              (diff, [np.nan, np.inf, -np.inf]),
+                              (disp, [np.nan, np.inf, -np.inf])):
+            array[rng.random(shape) < 0.08] = values[0]
+            array[0, :2] = values[1:]
+        keep = rng.random(shape) < 0.7
+        filled = ~keep & (rng.random(shape) < 0.5)
+        for window, max_diff, factor in ((9, 1.0, 0.1), (1, 2.5, 0.3)):
+            kwargs = {'window': window, 'max_diff': max_diff, 'terms': terms,
+                      'filled_confidence': factor}
+            for extra in ({}, {'filled': filled}, {'filled': filled, 'disparity': disp}):
+                got = confidence_map(ratio, diff, keep, **kwargs, **extra)  # type: ignore
+                want = confidence_reference(
+                    ratio, diff, keep, window, terms.support_window, max_diff, factor,
+                    terms.smoothness, terms.outside_scale, extra.get('disparity'),
+                    extra.get('filled'))
+                np.testing.assert_array_equal(got, want)
+                assert got.dtype == np.float32
+                assert (got[~keep & ~filled] == 0).all()
+        # float64 maps take the numpy path, with the same result
+        got64 = confidence_map(ratio.astype(np.float64), diff, keep, terms=terms)
+        np.testing.assert_array_equal(got64, confidence_reference(
+            ratio.astype(np.float64), diff, keep, 5, terms.support_window, 1.0, 0.1,
+            terms.smoothness, terms.outside_scale, None, None))
 
 
 def test_occlusions_fill_from_the_background() -> None:
