@@ -123,27 +123,37 @@ def test_bounded_bands_match_their_reference(paths: int, scale: float, overlap: 
     np.testing.assert_array_equal(matcher.total.astype(np.int64), want)
 
 
+@pytest.mark.parametrize('border_cost', [0.0, 3.5])
 @pytest.mark.parametrize(('paths', 'memory_mb'), [(8, 160.0), (8, 0.0), (5, 0.0)])
-def test_every_thread_count_gives_the_same_result(paths: int, memory_mb: float) -> None:
+def test_every_thread_count_gives_the_same_result(paths: int, memory_mb: float,
+                                                  border_cost: float) -> None:
     """Whole volumes (two chains meeting) and bounded bands, on one and on two threads:
-    bit-identical outputs, and 5 paths in bands equal one band (single pass: exact)."""
+    bit-identical outputs, and 5 paths in bands equal one band (single pass: exact). With
+    a border cost, one thread takes its statistic from the stored volume, two from rows
+    computed for it: the same value."""
     left, right = _pair(70, 90, seed=5)
     params = SgmParams(disparity_range=16, paths=paths, band_rows=9, memory_mb=memory_mb,
-                       band_overlap=12)
+                       band_overlap=12, border_cost=border_cost)
     outputs = []
+    border_costs = []
     before = numba.get_num_threads()
     try:
         for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):  # type: ignore[attr-defined]
             numba.set_num_threads(threads)
-            result = SgmMatcher(params).match(left, right)
+            matcher = SgmMatcher(params)
+            result = matcher.match(left, right)
             outputs.append([a.copy() for a in (result.disparity, result.disparity_right,
                                                 result.cost_ratio)])
+            border_costs.append(matcher.border_cost)
     finally:
         numba.set_num_threads(before)
     for got, want in zip(outputs[0], outputs[1], strict=True):
         np.testing.assert_array_equal(got, want)
+    assert border_costs[0] == border_costs[1]
+    assert (border_costs[0] > 0) == (border_cost > 0)
     if paths == 5:
-        one = SgmMatcher(SgmParams(disparity_range=16, paths=5, band_rows=70)).match(left, right)
+        one = SgmMatcher(SgmParams(disparity_range=16, paths=5, band_rows=70,
+                                   border_cost=border_cost)).match(left, right)
         np.testing.assert_array_equal(one.disparity, outputs[0][0])
     valid = outputs[0][0][np.isfinite(outputs[0][0])]
     assert valid.size > 0.5 * left.size

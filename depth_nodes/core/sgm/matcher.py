@@ -42,6 +42,7 @@ from depth_nodes.core.sgm.check import check_disparity
 from depth_nodes.core.sgm.cost import (
     OUT_OF_RANGE_COST,
     CostInputs,
+    _best_cost_sum,
     _full_range_columns,
     census_dtype,
     cost_inputs,
@@ -355,7 +356,7 @@ class SgmMatcher:
         self._kept_total = keep_total
         frame = _Frame(self, p, b, inputs, np.ascontiguousarray(left, dtype=np.float32),
                        keep_total)
-        run_tasks(frame.tasks(), threads)
+        run_tasks(frame.tasks(threads), threads)
         self.border_cost = frame.border_cost
         del frame, inputs  # the per-frame intensities, before the filters' temporaries
         return self._finish(b, p)
@@ -570,15 +571,21 @@ class _Frame:
         self.extrapolate = params.border_cost > 0
         self.border_cost = 0
         self.samples = [0.0, 0.0]
+        self.from_volume = False
         self.h, self.w = image.shape
         bands = len(buffers['bands'])
         self.band_locks = [threading.Lock() for _ in range(bands)]
         self.swept = [False] * bands
 
-    def tasks(self) -> list[Task]:
-        """The frame's tasks, dependencies first."""
+    def tasks(self, threads: int = 2) -> list[Task]:
+        """The frame's tasks, dependencies first. On one thread with whole volumes the
+        border statistic is taken from the stored costs once they are all there (the
+        same rows, so the same value) instead of from rows computed again for it: 4 % of
+        a frame's work saved. With more threads the sampled rows come first, so that the
+        chains can start on the first bands' costs."""
         tasks: list[Task] = []
-        if self.extrapolate:
+        self.from_volume = self.buf['whole'] and self.extrapolate and threads == 1
+        if self.extrapolate and not self.from_volume:
             ys = range(0, self.h, BORDER_ROW_STEP)
             half = (len(ys) + 1) // 2
             tasks += [Task(self._sample(part, rows))
@@ -591,6 +598,9 @@ class _Frame:
             cost = [len(tasks) + k for k in range(bands)]
             tasks += [Task(self._cost(k), border, 2 * min(k, bands - 1 - k))
                       for k in range(bands)]
+            if self.from_volume:  # every band's costs, then the statistic and the fill
+                tasks.append(Task(lambda worker: self._border_from_volume(), cost))
+                cost = [len(tasks) - 1] * bands
             down = [len(tasks) + k for k in range(bands)]
             tasks += [Task(self._sweep(k, upward=False), [cost[k], *down[k - 1:k]], 2 * k + 1)
                       for k in range(bands)]
@@ -620,9 +630,17 @@ class _Frame:
         def run(worker: int) -> None:
             band = self.buf['bands'][k]
             cost = self.inputs.rows(band.y0, self.buf['cost'][0][band.y0:band.y0 + band.rows])
-            if self.extrapolate:
+            if self.extrapolate and not self.from_volume:
                 fill_outside(cost, self.p.min_disparity, self.border_cost)
         return run
+
+    def _border_from_volume(self) -> None:
+        """:meth:`_border` from the stored volume's rows, then its out-of-image cells."""
+        volume = self.buf['cost'][0]
+        x_lo, x_hi = _full_range_columns(self.w, self.p.disparity_range, self.p.min_disparity)
+        total = float(_best_cost_sum(volume, x_lo, x_hi, BORDER_ROW_STEP))
+        self.border_cost = _border_cost(self.p, total, self.h, self.w)
+        fill_outside(volume, self.p.min_disparity, self.border_cost)
 
     def _sweep(self, k: int, *, upward: bool) -> Any:
         """Whole volumes: one chain's paths through band k, into the frame's partial sum
