@@ -139,9 +139,11 @@ def path_step(cost: U8, prev: U16, mprev: int, p1: int, p2: int, cur: U16) -> in
 
     ``cur`` must be a buffer the caller allocated itself (not a view into an array that
     also holds ``prev``), or LLVM leaves the loop scalar. Every value is kept 16-bit (see
-    below): then the recurrence and the running minimum vectorise as one loop on 32 lanes
-    per AVX-512 vector. (With numba's 64-bit arithmetic the fused minimum was slower than
-    a second loop; in 16 bits the fused loop is 1.4x as fast as the two.)
+    below): then the recurrence and the running minimum vectorise as one loop on 16 lanes
+    per 256-bit vector (LLVM's preferred width on this package's machine; compiled for
+    512-bit vectors the sweep was no faster, docs/speed.md). (With numba's 64-bit
+    arithmetic the fused minimum was slower than a second loop; in 16 bits the fused loop
+    is 1.4x as fast as the two.)
     """
     n = cost.shape[0]
     mp = np.uint16(mprev)

@@ -185,10 +185,10 @@ class SgmBench:
             lines.append(
                 '  downward sweep alone (3 paths, one thread, 640x480x128): '
                 f'{k["whole_ms"]:.1f} ms, {k["volume_gbs"]:.1f} GB/s of volume read and '
-                'written; the same rows from '
-                f'a band small enough for L2: {k["cached_ms"]:.1f} ms; a plain memory copy '
-                f'runs at {k["copy_gbs"]:.1f} GB/s (so the recurrence is bound by arithmetic '
-                'when the cached run is about as slow)')
+                'written; the same rows as an 8-row band swept again and again (from the '
+                f'caches, not DRAM): {k["cached_ms"]:.1f} ms; a plain memory copy '
+                f'runs at {k["copy_gbs"]:.1f} GB/s (when the cached run is about as slow, '
+                'memory bandwidth is not what bounds the sweep: docs/speed.md)')
         if self.busy_ms:
             b = self.busy_ms
             lines += [
@@ -322,8 +322,9 @@ def kernel_limits(width: int = 640, height: int = 480,
                   disparities: int = 128) -> dict[str, float]:
     """Is the path recurrence bound by memory bandwidth or by arithmetic? The downward
     sweep (3 directions, one thread) over a whole random volume of this size, the same
-    number of rows swept from an 8-row band that stays in the core's L2 cache, and a
-    plain memory copy for the bandwidth the machine offers one thread."""
+    number of rows swept from one 8-row band again and again (3.5 MB with its path rows at
+    640x480x128: in the caches, not DRAM), and a plain memory copy for the bandwidth the
+    machine offers one thread."""
     import numba
 
     from depth_nodes.core.sgm.aggregate import new_line_buffers, p2_table, sweep_down
