@@ -182,7 +182,7 @@ def _confidence_f32(ratio: F32, diff: F32, keep: NDArray[np.bool_], window: int,
                     fill: NDArray[np.bool_] | None) -> F32:
     """:func:`confidence_reference` for float32 maps (what the node gets): two numba passes
     around OpenCV's box filters, in float32 as numpy computes it, so the result is the
-    same bit for bit (tested). 7.5 ms at 640x480 in numpy, 2.5 ms this way."""
+    same bit for bit (tested). 7.8 ms at 640x480 in numpy, 3.6 ms this way."""
     shape = ratio.shape
     have_out = out is not None
     disparity = out if out is not None else np.zeros((1, 1), np.float32)

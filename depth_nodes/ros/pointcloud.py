@@ -133,8 +133,9 @@ def pack_points(xyz: NDArray[Any], rgb: NDArray[np.uint8] | None,
     """The points' bytes in the layout ``fields`` / ``step`` (every field float32, padding
     zero), as the message's own ``array('B')``: numba writes them in place, so the 9.8 MB of
     a padded 640x480 colour cloud are neither built field by field in numpy nor copied
-    again into the message (10 ms a frame before, 3 ms now; :func:`pack_points_reference`
-    is the numpy way, kept for the tests and for big-endian hosts)."""
+    again into the message (with the message: 4.9 ms that way, 1.5 ms this one;
+    :func:`pack_points_reference` is the numpy way, kept for the tests and for big-endian
+    hosts)."""
     height, width = xyz.shape[:2]
     data: array.array[int] = array.array('B', [0]) * (height * width * step)
     if not data or sys.byteorder != 'little':

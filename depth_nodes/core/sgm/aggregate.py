@@ -27,14 +27,13 @@ package's 2-core machine; the cause was not pinned down: not aliasing, error mod
 fast-math). Run from several threads at once, this needs a thread-safe numba threading
 layer (OpenMP or TBB, see ``matcher.py``), and each thread set to one numba thread.
 
-NO_NRT: the kernels that take a view of an array for every pixel (``cost[y, x]``,
-``total[x]``) and are not parallel loop bodies (the selections, the cost rows) are
-compiled with numba's ``_nrt=False``: no reference counting. With it, numba increments and
-decrements the parent array's count (an atomic operation) around every view it cannot
-prove short-lived; measured with ``perf`` on one thread (640x480, 128 disparities, 8
-paths), those two calls took 19 % of a frame. Such a kernel cannot allocate: its scratch
-comes from its caller. ``_nrt`` is an internal option of numba (pinned in
-``requirements/constraints.txt``).
+NO_NRT: the selection and cost-row kernels, which take a view of an array for every pixel
+(``cost[y, x]``, ``total[x]``), are compiled with numba's ``_nrt=False``: no reference
+counting (:func:`no_nrt_kernel`). With it, numba increments and decrements the parent
+array's count (an atomic operation) around every view it cannot prove short-lived;
+measured with ``perf`` on one thread (640x480, 128 disparities, 8 paths), those two calls
+took 19 % of a frame. Such a kernel cannot allocate: its scratch comes from its caller.
+``_nrt`` is an internal option of numba (pinned in ``requirements/constraints.txt``).
 
 P2 may adapt to the image: P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / scale)), with the
 intensity step truncated to an integer (exact for camera images), looked up in a table.

@@ -254,13 +254,13 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
         upward: Run the upward directions (False for the
             :data:`~depth_nodes.core.sgm.aggregate.SINGLE_PASS` path counts).
         ring0: Rows the upward paths already went through (see above).
-        lines: (4, D + 2) uint16 scratch with SENTINEL at both ends of each line (this
-            kernel allocates nothing: ``aggregate.NO_NRT``).
         extrapolate: Select the left disparity over every disparity, also those whose
             right pixel is outside the image (their cells then hold a neutral cost, see
             ``cost.fill_outside``): the left border strip takes the disparity its
             neighbours' paths carry in. Otherwise only in-image disparities are candidates.
             The right view always uses in-image cells only.
+        lines: (4, D + 2) uint16 scratch with SENTINEL at both ends of each line (this
+            kernel allocates nothing: ``aggregate.NO_NRT``).
     """
     for _ in prange(1):  # one iteration: see ONE_THREAD_GUFUNC
         r_all, w, n = cost.shape
@@ -271,7 +271,9 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
             ring = (ring0 + i) % 3
             cur_ring = _ring(lb0, lb1, lb2, ring)
             in_band = b < rows
-            for x in range(ndir and w):  # (1) upward paths + downward sum
+            # (1) upward paths + downward sum; without upward paths (1) has nothing to do
+            # and (3) adds the downward sum itself
+            for x in range(w if ndir else 0):
                 out = total[x]
                 if in_band:
                     part = partial[b, x]
