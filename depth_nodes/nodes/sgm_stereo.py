@@ -143,7 +143,7 @@ PARAMETERS = [
               'graph of several processes on few cores, 1 wastes less CPU on waiting '
               'threads (see the README, bench --live)', 0, 1024),
     ParamSpec('parallel_frames', 1, 'census SGM: frames matched at once, each on its own '
-              'thread with its own buffers (640x480x128: 48 MB with 5 paths, 129 MB with 8); '
+              'thread with its own buffers (640x480x128: 25 MB with 5 paths, 129 MB with 8); '
               '2 keeps two cores busy with no waiting between threads (see the README, '
               'bench --live)', 1, 16,
               read_only=True),

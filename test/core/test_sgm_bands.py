@@ -158,3 +158,29 @@ def test_every_thread_count_gives_the_same_result(paths: int, memory_mb: float,
     valid = outputs[0][0][np.isfinite(outputs[0][0])]
     assert valid.size > 0.5 * left.size
     assert np.median(valid) == 4
+
+
+def test_single_pass_bands_are_cache_sized_and_change_nothing(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """5 paths cut the image into bands of at most CACHED_BAND_BYTES (never below
+    MIN_BAND_ROWS rows), and the output is the one-band output bit for bit; 8 paths keep
+    their bands."""
+    from depth_nodes.core.sgm import matcher as matcher_module
+    from depth_nodes.core.sgm.bands import CACHED_BAND_BYTES, CELL_BYTES, MIN_BAND_ROWS
+
+    assert SgmMatcher(SgmParams(disparity_range=128, paths=5)).bands(480, 640)[0].rows == (
+        int(CACHED_BAND_BYTES // (640 * 128 * CELL_BYTES)))
+    assert SgmMatcher(SgmParams(disparity_range=256, paths=5)).bands(1080, 1920)[0].rows == (
+        MIN_BAND_ROWS)
+    left, right = _pair(200, 90, seed=7)
+    assert SgmMatcher(SgmParams(disparity_range=16, paths=5)).bands(200, 90)[0].rows == 25
+    monkeypatch.setattr(matcher_module, 'CACHED_BAND_BYTES', 90 * 16 * CELL_BYTES * 20)
+    banded = SgmMatcher(SgmParams(disparity_range=16, paths=5))
+    assert [b.rows for b in banded.bands(200, 90)] == [20] * 10
+    got = banded.match(left, right)
+    one = SgmMatcher(SgmParams(disparity_range=16, paths=5, band_rows=200)).match(left, right)
+    for a, b in zip((got.disparity, got.disparity_right, got.cost_ratio),
+                    (one.disparity, one.disparity_right, one.cost_ratio), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert np.isfinite(got.disparity).mean() > 0.5
+    assert len(SgmMatcher(SgmParams(disparity_range=16, paths=8)).bands(200, 90)) == 8

@@ -30,7 +30,9 @@ from depth_nodes.core.sgm.aggregate import (
     sweep_down,
 )
 from depth_nodes.core.sgm.bands import (
+    CACHED_BAND_BYTES,
     CELL_BYTES,
+    MIN_BAND_ROWS,
     MIN_BANDS,
     Band,
     Task,
@@ -260,6 +262,9 @@ class SgmMatcher:
         overlap = 0 if p.paths in SINGLE_PASS else p.band_overlap
         rows = p.band_rows or band_rows(h, w, p.disparity_range, memory_mb=p.memory_mb,
                                         slots=SIZED_SLOTS, overlap=overlap)
+        if p.paths in SINGLE_PASS and not p.band_rows:  # exact with any bands: cache-sized
+            cached = int(CACHED_BAND_BYTES // (w * p.disparity_range * CELL_BYTES))
+            rows = min(rows, max(MIN_BAND_ROWS, cached))
         return band_layout(h, min(rows, h), overlap)
 
     def _buffers(self, h: int, w: int, threads: int) -> dict[str, Any]:
