@@ -353,29 +353,16 @@ def _pixel_costs_16(cl_lo: np.uint16, cl_hi: np.uint16, rm_lo: NDArray[np.uint16
         out[np.uint64(k)] = np.uint8(min(value, top))
 
 
-@njit(cache=True, nogil=True)
+@no_nrt_kernel()
 def _cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
                   left: NDArray[np.int16], right_m: NDArray[np.int16],
                   lo_l: NDArray[np.int16], hi_l: NDArray[np.int16],
                   lo_rm: NDArray[np.int16], hi_rm: NDArray[np.int16], y0: int,
                   min_disparity: int, census_weight: int, intensity_weight: int,
-                  use_bt: bool, truncation: int, out: U8) -> None:
+                  use_bt: bool, truncation: int, out: U8, rm_lo: U16, rm_hi: U16) -> None:
     """:func:`_cost_rows` for uint8 images and a census of at most 32 bits (doubled
-    intensities, see :func:`_pixel_costs_16`)."""
-    w = out.shape[1]
-    _cost_rows_16_into(census_l, census_rm, left, right_m, lo_l, hi_l, lo_rm, hi_rm, y0,
-                       min_disparity, census_weight, intensity_weight, use_bt, truncation,
-                       out, np.empty(w, np.uint16), np.empty(w, np.uint16))
-
-
-@no_nrt_kernel()
-def _cost_rows_16_into(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
-                       left: NDArray[np.int16], right_m: NDArray[np.int16],
-                       lo_l: NDArray[np.int16], hi_l: NDArray[np.int16],
-                       lo_rm: NDArray[np.int16], hi_rm: NDArray[np.int16], y0: int,
-                       min_disparity: int, census_weight: int, intensity_weight: int,
-                       use_bt: bool, truncation: int, out: U8, rm_lo: U16,
-                       rm_hi: U16) -> None:
+    intensities, see :func:`_pixel_costs_16`); ``rm_lo`` and ``rm_hi`` are (W,) uint16
+    scratch for the right census row's halves (:func:`right_halves`)."""
     rows, w = out.shape[:2]
     for i in range(rows):
         y = y0 + i
@@ -413,10 +400,17 @@ class CostInputs:
 
     def rows(self, y0: int, out: U8) -> U8:
         """Rows y0 .. y0 + len(out) - 1 of the cost volume, into ``out`` (one thread)."""
+        common = (y0, self.min_disparity, self.census_weight, self.intensity_weight,
+                  self.use_bt, self.truncation, out)
         kernel: Any = _cost_rows_16 if self.sixteen_bit else _cost_rows
-        kernel(*self.arrays, y0, self.min_disparity, self.census_weight,
-               self.intensity_weight, self.use_bt, self.truncation, out)
+        kernel(*self.arrays, *common, *(right_halves(out.shape[1]) if self.sixteen_bit else ()))
         return out
+
+
+def right_halves(width: int) -> tuple[U16, U16]:
+    """Scratch of the 16-bit cost kernels: the right census row as two 16-bit halves (they
+    allocate nothing themselves, ``aggregate.NO_NRT``)."""
+    return np.empty(width, np.uint16), np.empty(width, np.uint16)
 
 
 def cost_inputs(left: NDArray[np.generic], right: NDArray[np.generic], *,

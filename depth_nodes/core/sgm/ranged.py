@@ -47,6 +47,7 @@ from depth_nodes.core.sgm.cost import (
     CostInputs,
     _pixel_costs,
     _pixel_costs_16,
+    right_halves,
 )
 from depth_nodes.core.sgm.select import _key, _keyed_min, select_pixel, subpixel_offset
 
@@ -216,31 +217,15 @@ def _ranged_cost_rows(census_l: NDArray[Any], census_rm: NDArray[Any], left: F32
                          intensity_weight, use_bt, truncation, cell)
 
 
-@njit(cache=True, nogil=True)
+@no_nrt_kernel()
 def _ranged_cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
                          left: NDArray[np.int16], right_m: NDArray[np.int16],
                          lo_l: NDArray[np.int16], hi_l: NDArray[np.int16],
                          lo_rm: NDArray[np.int16], hi_rm: NDArray[np.int16], y0: int,
                          rows: int, min_disparity: int, n_disp: int, census_weight: int,
                          intensity_weight: int, use_bt: bool, truncation: int, lo: I32,
-                         wid: I32, base: I64, out: U8) -> None:
+                         wid: I32, base: I64, out: U8, rm_lo: U16, rm_hi: U16) -> None:
     """``cost._cost_rows_16`` over the windows of rows y0 .. y0 + rows - 1."""
-    w = census_l.shape[1]
-    _ranged_cost_rows_16_into(census_l, census_rm, left, right_m, lo_l, hi_l, lo_rm, hi_rm,
-                              y0, rows, min_disparity, n_disp, census_weight,
-                              intensity_weight, use_bt, truncation, lo, wid, base, out,
-                              np.empty(w, np.uint16), np.empty(w, np.uint16))
-
-
-@no_nrt_kernel()
-def _ranged_cost_rows_16_into(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
-                              left: NDArray[np.int16], right_m: NDArray[np.int16],
-                              lo_l: NDArray[np.int16], hi_l: NDArray[np.int16],
-                              lo_rm: NDArray[np.int16], hi_rm: NDArray[np.int16], y0: int,
-                              rows: int, min_disparity: int, n_disp: int,
-                              census_weight: int, intensity_weight: int, use_bt: bool,
-                              truncation: int, lo: I32, wid: I32, base: I64, out: U8,
-                              rm_lo: U16, rm_hi: U16) -> None:
     w = census_l.shape[1]
     for y in range(y0, y0 + rows):
         for x in range(w):
@@ -261,10 +246,10 @@ def ranged_costs(inputs: CostInputs, y0: int, rows: int, lo: I32, wid: I32, base
                  out: U8) -> None:
     """The costs of the windows of rows y0 .. y0 + rows - 1 into the flat ``out`` (one
     thread); out-of-image cells get :data:`~depth_nodes.core.sgm.cost.OUT_OF_RANGE_COST`."""
+    common = (y0, rows, inputs.min_disparity, inputs.disparity_range, inputs.census_weight,
+              inputs.intensity_weight, inputs.use_bt, inputs.truncation, lo, wid, base, out)
     kernel: Any = _ranged_cost_rows_16 if inputs.sixteen_bit else _ranged_cost_rows
-    kernel(*inputs.arrays, y0, rows, inputs.min_disparity, inputs.disparity_range,
-           inputs.census_weight, inputs.intensity_weight, inputs.use_bt, inputs.truncation,
-           lo, wid, base, out)
+    kernel(*inputs.arrays, *common, *(right_halves(lo.shape[1]) if inputs.sixteen_bit else ()))
 
 
 @no_nrt_kernel()
