@@ -112,7 +112,13 @@ def segments(start_ns: int, end_ns: int, count: int) -> list[Segment]:
 
 def run_segment(job: SegmentJob) -> SegmentResult:
     """Run the graph over one segment (in a worker process or actor)."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')
+    # A worker routes its messages in-process: it discovers no other participant, whatever
+    # the caller's environment says. With the caller's LOCALHOST (as in the tests) the
+    # workers' participants found each other, and one worker once hung for good at its
+    # end: Fast DDS's set_listener spinning while a discovery thread (a participant that
+    # went away) waited on the lock it held.
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    os.environ.pop('ROS_STATIC_PEERS', None)
     import rclpy
     from rclpy.context import Context
     from rclpy.impl.logging_severity import LoggingSeverity
