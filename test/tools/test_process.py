@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import errno
+import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -208,3 +211,41 @@ def test_a_run_that_produces_nothing_is_an_error(tmp_path: Path, graph: GraphCon
         result = run_cli(args, env=ros_env)
         assert result.returncode == 1
         assert 'holds no messages' in result.stderr
+
+
+class _FullDiskAt(BagWriter):
+    """A writer whose disk fills up when the graph publishes ``topic`` the ``n``-th time."""
+
+    def __init__(self, *args: Any, topic: str, n: int, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.topic, self.left = topic, n
+
+    def write(self, topic: str, *args: Any, **kwargs: Any) -> None:
+        if topic == self.topic:
+            self.left -= 1
+            if self.left == 0:
+                self._fail(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
+        super().write(topic, *args, **kwargs)
+
+
+@pytest.mark.parametrize('topic', ['/stereo/left/image_restored', RAW])
+def test_a_full_disk_ends_the_run_in_one_line_with_no_output(
+        tmp_path: Path, graph: GraphConfig, topic: str, monkeypatch: pytest.MonkeyPatch,
+        capfd: pytest.CaptureFixture[str]) -> None:
+    """The disk filling up while a node publishes (the write happens inside the node's
+    callback, whose guard used to take it for a failure of the frame: a traceback per
+    node, then a traceback of the whole command) or while an input is copied: one error
+    line, and no half-written bag left behind."""
+    import depth_nodes.tools.bags.process as process
+
+    _input_bag(tmp_path / 'in', _frames(20))
+    monkeypatch.setattr(process, 'BagWriter',
+                        lambda *a, **k: _FullDiskAt(*a, topic=topic, n=7, **k))
+    with pytest.raises(BagError) as raised:
+        process_bag(tmp_path / 'in', tmp_path / 'out', config=graph)
+    assert str(raised.value) == (f'cannot write the bag {tmp_path / "out"}: No space left on '
+                                 f'device; {tmp_path / "out"} not written')
+    assert not (tmp_path / 'out').exists()
+    err = capfd.readouterr().err
+    assert 'Traceback' not in err
+    assert 'internal_error' not in err

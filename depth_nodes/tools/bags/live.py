@@ -314,7 +314,8 @@ class Recorder:
         for topic in self.topics:
             if not topic.startswith('/'):
                 raise ConfigError(f'record: topic names must be absolute, got {topic!r}')
-        self.writer = BagWriter(path, overwrite=overwrite)
+        # a full disk leaves what was recorded, without its index (not readable as it is)
+        self.writer = BagWriter(path, overwrite=overwrite, keep_partial=True)
         self.node = Node('depth_nodes_recorder')
         self.count = 0
         self._lock = threading.Lock()

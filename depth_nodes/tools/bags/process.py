@@ -284,8 +284,9 @@ def process_bag(
                     else:
                         _run_parallel(reader, writer, nodes, config, params, engine, routes,
                                       produced, report, progress, in_bag)
-            except BagError as exc:  # e.g. the input is corrupt part-way: no partial output
-                remove_bag(out_bag)
+            except BagError as exc:  # e.g. the input is corrupt part-way, or the disk is
+                # full: no partial output
+                writer.discard()
                 raise BagError(f'{exc}; {out_bag} not written') from None
         finally:
             report.seconds = time.monotonic() - started
@@ -421,9 +422,18 @@ def _run(
     progress: TextIO | None,
 ) -> None:
     now = [0]
+    failed: list[BagError] = []
 
     def sink(topic: str, msg: Any) -> None:
-        writer.write(topic, msg, now[0])
+        # a node's publish calls this: a write that fails (a full disk) ends the run below,
+        # instead of being taken by the node for a failure of its own frame
+        if failed:
+            return
+        try:
+            writer.write(topic, msg, now[0])
+        except BagError as exc:
+            failed.append(exc)
+            return
         report.published[topic] += 1
         for spec_in in routes.get(topic, ()):
             spec_in.callback(msg)
@@ -448,12 +458,16 @@ def _run(
             report.consumed[bag_msg.topic] += 1
             for spec_in in subscribers:
                 spec_in.callback(msg)
+            if failed:
+                raise failed[0]
         report.frames += bag_msg.topic == report.frame_topic
         bar.update(report.frames)
     bar.update(report.frames, force=True)
     bar.close()
     for node in nodes:  # what the nodes still hold can never complete: count it
         node.finish_stream()
+    if failed:
+        raise failed[0]
 
 
 def _frame_topic(reader: BagReader, routes: dict[str, list[Any]], produced: set[str]) -> str:
