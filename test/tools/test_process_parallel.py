@@ -15,6 +15,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.errors import BagError
+from depth_nodes.graph.description import load_graph_config
 from depth_nodes.sim import StereoSimConfig
 from depth_nodes.sim.projector import ProjectorSimConfig
 from depth_nodes.sim.stereo import simulate_stereo
@@ -22,11 +23,20 @@ from depth_nodes.tools.bags.generate import frame_messages
 from depth_nodes.tools.bags.io import BagReader, BagWriter, serialize
 from depth_nodes.tools.bags.parallel import (
     END,
+    Segment,
+    SegmentJob,
     SegmentResult,
+    claim_spill,
+    run_segment,
     segments,
     stitch,
 )
-from depth_nodes.tools.bags.process import ProcessReport, _Progress, process_bag
+from depth_nodes.tools.bags.process import (
+    ProcessReport,
+    _Progress,
+    default_config_path,
+    process_bag,
+)
 from depth_nodes.tools.bags.structured_light import (
     REFERENCE_FILE,
     StructuredLightBagConfig,
@@ -259,3 +269,60 @@ def test_cli_prints_the_summary_and_refuses_bad_worker_options(
     assert len(away.stderr.strip().splitlines()) == 1
     assert not (tmp_path / 'b').exists()
     assert not (tmp_path / 'r').exists()
+
+
+def _job(bag: Path, index: int, spill_dir: Path) -> SegmentJob:
+    """A job over the whole bag (numbered ``index``) for the shipped stereo graph."""
+    return SegmentJob(str(bag), load_graph_config(default_config_path()), {},
+                      Segment(index, None, None), (), STEREO_INPUTS, str(spill_dir))
+
+
+STEREO_INPUTS = ('/stereo/left/camera_info', '/stereo/left/image_raw',
+                 '/stereo/right/camera_info', '/stereo/right/image_raw')
+
+
+def _outputs(result: SegmentResult) -> list[tuple[str, str, bytes]]:
+    return [out for item in stitch(iter([result])) for out in item.outputs]
+
+
+@pytest.fixture
+def worker_env(monkeypatch: pytest.MonkeyPatch, ros_env: dict[str, str]) -> None:
+    """run_segment sets a worker's discovery variables: restored after the test."""
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.delenv('ROS_STATIC_PEERS', raising=False)
+
+
+def test_a_spill_file_is_written_over_by_the_next_segment(
+        stereo_bag: Path, tmp_path: Path, worker_env: None) -> None:
+    """A segment written out frees its spill file, and the next segment claims it and
+    writes over it in place (a tenth of the kernel time of new pages): its outputs are read
+    back whole, whatever the file held after them."""
+    first = run_segment(_job(stereo_bag, 0, tmp_path))
+    path = Path(first.spill or '')
+    size = path.stat().st_size
+    expected = _outputs(first)
+    assert len(expected) > 10
+    assert not path.exists()
+    (free,) = tmp_path.iterdir()
+    assert free.name == 'free-segment-0'
+    with free.open('r+b') as stale:  # other bytes in place, and a longer tail
+        stale.write(b'\xa5' * size * 2)
+    job = _job(stereo_bag, 1, tmp_path)
+    claim_spill(job)
+    assert [p.name for p in tmp_path.iterdir()] == ['segment-1']
+    second = run_segment(job)
+    assert second.spill == str(tmp_path / 'segment-1')
+    assert (tmp_path / 'segment-1').stat().st_size == 2 * size  # written over, in place
+    assert _outputs(second) == expected
+
+
+def test_a_worker_that_cannot_write_its_outputs_stops_in_one_line(
+        stereo_bag: Path, tmp_path: Path, worker_env: None,
+        capfd: pytest.CaptureFixture[str]) -> None:
+    """A full disk under a worker's spill file stops the segment with one error, instead of
+    each node taking it for a failure of its own frame (a traceback each)."""
+    (tmp_path / 'segment-0').symlink_to('/dev/full')  # writes fail with ENOSPC
+    with pytest.raises(BagError, match=r"^cannot write a worker's outputs to .*: No space "
+                                       r'left on device$'):
+        run_segment(_job(stereo_bag, 0, tmp_path))
+    assert 'Traceback' not in capfd.readouterr().err

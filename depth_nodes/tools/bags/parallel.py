@@ -131,8 +131,9 @@ def run_segment(job: SegmentJob) -> SegmentResult:
     segment = job.segment
     spill = None
     if job.spill_dir is not None:  # bytes through a file: no pickling of the clouds
-        result.spill = os.path.join(job.spill_dir, f'segment-{segment.index}')
-        spill = open(result.spill, 'wb')  # noqa: SIM115 (closed in the finally below)
+        result.spill = spill_path(job)
+        # a file an earlier segment used is written over, not truncated (claim_spill)
+        spill = open(result.spill, 'r+b' if os.path.exists(result.spill) else 'wb')  # noqa: SIM115 (closed in the finally below)
     context = Context()
     rclpy.init(args=[], context=context)
     nodes: list[Any] = []
@@ -145,13 +146,24 @@ def run_segment(job: SegmentJob) -> SegmentResult:
             routes, produced = routes_of(nodes)
             cause = [END]
             keep = [False]
+            failed: list[BagError] = []
 
             def sink(topic: str, msg: Any) -> None:
+                # a node's publish calls this: a spill write that fails (a full disk) ends
+                # the segment below, instead of being taken by the node for its own failure
+                if failed:
+                    return
                 if keep[0]:
                     msgtype = message_type_name(msg)
                     data: bytes | tuple[int, int] = serialize(msg, msgtype)
                     if spill is not None:
-                        data = (spill.tell(), spill.write(data))  # type: ignore[arg-type]
+                        try:
+                            data = (spill.tell(), spill.write(data))  # type: ignore[arg-type]
+                        except OSError as exc:
+                            failed.append(BagError(
+                                f"cannot write a worker's outputs to {job.spill_dir}: "
+                                f'{exc.strerror or exc}'))
+                            return
                     result.outputs.setdefault(cause[0], []).append((topic, msgtype, data))
                 for spec_in in routes.get(topic, ()):
                     spec_in.callback(msg)
@@ -185,6 +197,8 @@ def run_segment(job: SegmentJob) -> SegmentResult:
                 result.seen.append((bag_msg.topic, bag_msg.timestamp))
                 cause[0] = local
                 feed(bag_msg)
+                if failed:
+                    raise failed[0]
                 waiting.discard(bag_msg.topic)
                 after = _drop_counts(nodes)
                 delta = [(n, r, c - before.get((n, r), 0)) for (n, r), c in after.items()
@@ -203,6 +217,8 @@ def run_segment(job: SegmentJob) -> SegmentResult:
                 cause[0] = END
                 for node in nodes:
                     node.finish_stream()
+                if failed:
+                    raise failed[0]
                 after = _drop_counts(nodes)
                 result.drops[END] = [(n, r, c - before.get((n, r), 0))
                                      for (n, r), c in after.items()
@@ -271,15 +287,47 @@ def stitch(results: Iterator[SegmentResult]) -> Iterator[Stitched]:
     yield from _emit(current, offset, begin, len(current.seen), final=True)
 
 
+def spill_path(job: SegmentJob) -> str:
+    """The file a local worker writes the outputs' bytes of ``job`` to."""
+    assert job.spill_dir is not None
+    return os.path.join(job.spill_dir, f'segment-{job.segment.index}')
+
+
+#: Name prefix of a spill file whose segment was written out, kept for the next segment.
+_FREE = 'free-'
+
+
+def claim_spill(job: SegmentJob) -> None:
+    """Give ``job`` the spill file of a segment already written out, if one is free.
+
+    Writing over a file's pages costs a tenth of writing new ones (500 MB: 0.1 s against
+    1.56 s of system time on this machine's ext4, 0.32 s on tmpfs): with a new file per
+    segment, two workers spent about 10 s more in the kernel than one worker on the
+    200-frame VGA bag, mostly copying into fresh page-cache pages. The main process renames
+    files, so nothing else touches them meanwhile.
+    """
+    if job.spill_dir is None:
+        return
+    free = sorted(f for f in os.listdir(job.spill_dir) if f.startswith(_FREE))
+    if free:
+        os.rename(os.path.join(job.spill_dir, free[0]), spill_path(job))
+
+
+def _release(path: str | None) -> None:
+    """Mark a segment's spill file free for the next segment (:func:`claim_spill`)."""
+    if path and os.path.exists(path):
+        head, tail = os.path.split(path)
+        os.rename(path, os.path.join(head, _FREE + tail))
+
+
 def _discard(result: SegmentResult) -> None:
-    if result.spill and os.path.exists(result.spill):
-        os.unlink(result.spill)
+    _release(result.spill)
 
 
 def _emit(result: SegmentResult, offset: int, begin: int, end: int, *,
           final: bool = False) -> Iterator[Stitched]:
     """Messages ``[begin, end)`` of ``result`` (and its end-of-stream outputs if
-    ``final``), the outputs' bytes read back from its spill file, which is removed after."""
+    ``final``), the outputs' bytes read back from its spill file, which is freed after."""
     spill = open(result.spill, 'rb') if result.spill else None  # noqa: SIM115
     view = mmap.mmap(spill.fileno(), 0, access=mmap.ACCESS_READ) if spill and \
         os.fstat(spill.fileno()).st_size else None
@@ -306,7 +354,7 @@ def _emit(result: SegmentResult, offset: int, begin: int, end: int, *,
             view.close()
         if spill is not None:
             spill.close()
-            os.unlink(spill.name)
+            _release(spill.name)
 
 
 class Engine:
@@ -377,6 +425,7 @@ class LocalEngine(Engine):
         queue = list(jobs)
         while queue or pending:
             while queue and len(pending) < self.workers + 1 and not stop():
+                claim_spill(queue[0])
                 pending.append(self._pool.submit(run_segment, queue.pop(0)))
                 self._futures.append(pending[-1])
             if not pending:
@@ -445,6 +494,7 @@ class RayEngine(Engine):
             # results wait in the object store: at most two per worker ahead of the output
             while queue and free and len(pending) < 2 * self.workers and not stop():
                 actor = free.pop(0)
+                claim_spill(queue[0])
                 ref = actor.run.remote(queue.pop(0))
                 busy[ref] = actor
                 pending.append(ref)
