@@ -184,3 +184,27 @@ def test_single_pass_bands_are_cache_sized_and_change_nothing(
         np.testing.assert_array_equal(a, b)
     assert np.isfinite(got.disparity).mean() > 0.5
     assert len(SgmMatcher(SgmParams(disparity_range=16, paths=8)).bands(200, 90)) == 8
+
+
+@pytest.mark.parametrize(('given', 'expected'), [(None, 'PASSIVE'), ('ACTIVE', 'ACTIVE')])
+def test_openmp_threads_sleep_between_regions_unless_the_user_says(
+        given: str | None, expected: str) -> None:
+    """Importing the package makes libgomp's idle threads sleep instead of spin (they took
+    the cores other processes needed: docs/speed.md); a value already set is kept. It must
+    hold when libgomp loads, so it is checked where libgomp loaded: in a fresh process,
+    after a parallel kernel ran."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != 'OMP_WAIT_POLICY'}
+    if given is not None:
+        env['OMP_WAIT_POLICY'] = given
+    code = ('import os, numpy as np\n'
+            'from depth_nodes.core.sgm import SgmMatcher, SgmParams\n'
+            'SgmMatcher(SgmParams(disparity_range=16)).match(*[np.zeros((20, 40), np.uint8)] * 2)\n'
+            'assert any("libgomp" in line for line in open("/proc/self/maps"))\n'
+            'print(os.environ["OMP_WAIT_POLICY"])\n')
+    out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == expected
