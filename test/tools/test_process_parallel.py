@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import os
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +25,7 @@ from depth_nodes.tools.bags.generate import frame_messages
 from depth_nodes.tools.bags.io import BagReader, BagWriter, serialize
 from depth_nodes.tools.bags.parallel import (
     END,
+    LocalEngine,
     Segment,
     SegmentJob,
     SegmentResult,
@@ -43,6 +46,8 @@ from depth_nodes.tools.bags.structured_light import (
     write_structured_light_bag,
 )
 
+#: Bound on a wait for a worker's answer (not a timing assertion: it only ends a hang).
+WAIT_S = 60.0
 STEREO = StereoSimConfig(width=160, height=120, n_frames=8, seed=7, colour=True)
 #: The frame whose right image the stereo bag leaves out: a drop every run must count.
 MISSING_RIGHT = 5
@@ -326,3 +331,34 @@ def test_a_worker_that_cannot_write_its_outputs_stops_in_one_line(
                                        r'left on device$'):
         run_segment(_job(stereo_bag, 0, tmp_path))
     assert 'Traceback' not in capfd.readouterr().err
+
+
+def test_workers_leave_sigterm_to_the_main_process() -> None:
+    """SIGTERM sent to the whole process group (`timeout`, a service manager) killed the
+    workers under the main process, which then failed with a traceback instead of closing
+    the output with what was done: a worker now ignores it, and keeps working."""
+    engine = LocalEngine(1)
+    try:
+        pid = engine._pool.submit(os.getpid).result(WAIT_S)
+        os.kill(pid, signal.SIGTERM)
+        assert engine._pool.submit(os.getpid).result(WAIT_S) == pid
+    finally:
+        engine.close()
+
+
+def test_a_worker_that_dies_is_one_error_line(stereo_bag: Path, tmp_path: Path,
+                                              worker_env: None) -> None:
+    """A worker killed (the out-of-memory killer, say) while it runs a segment: a
+    BagError that `process` prints in one line (it was a BrokenProcessPool traceback)."""
+    engine = LocalEngine(1)
+
+    def stop() -> bool:  # asked while the segment runs: the worker is killed then
+        for process in list(engine._pool._processes.values()):
+            os.kill(process.pid, signal.SIGKILL)
+        return False
+
+    try:
+        with pytest.raises(BagError, match=r'^a worker process ended abruptly'):
+            list(engine.map([_job(stereo_bag, 0, tmp_path)], stop))
+    finally:
+        engine.close()

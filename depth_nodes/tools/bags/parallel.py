@@ -394,13 +394,16 @@ def _keep_heap() -> None:
 
 def _init_worker(threads: int) -> None:
     """A spawned worker: its share of the cores, a heap kept for reuse, and signals left
-    to the main process (which stops the workers itself)."""
+    to the main process, which stops the workers itself. SIGTERM too: sent to the whole
+    process group (`timeout`, `kill -- -PGID`, a service manager stopping its unit), it
+    killed the workers under the main process, which then failed with a traceback instead
+    of closing the output with what was done."""
     import signal
 
     os.environ['NUMBA_NUM_THREADS'] = str(threads)
     _keep_heap()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 class LocalEngine(Engine):
@@ -420,24 +423,32 @@ class LocalEngine(Engine):
 
     def map(self, jobs: list[SegmentJob], stop: Callable[[], bool]) -> Iterator[SegmentResult]:
         from concurrent.futures import Future
+        from concurrent.futures.process import BrokenProcessPool
 
         pending: list[Future[SegmentResult]] = []
         queue = list(jobs)
         while queue or pending:
-            while queue and len(pending) < self.workers + 1 and not stop():
-                claim_spill(queue[0])
-                pending.append(self._pool.submit(run_segment, queue.pop(0)))
-                self._futures.append(pending[-1])
-            if not pending:
-                return
-            future = pending.pop(0)
-            while True:
-                try:
-                    yield future.result(timeout=0.2)
-                    break
-                except TimeoutError:
-                    if stop():
-                        return
+            try:
+                while queue and len(pending) < self.workers + 1 and not stop():
+                    claim_spill(queue[0])
+                    pending.append(self._pool.submit(run_segment, queue.pop(0)))
+                    self._futures.append(pending[-1])
+                if not pending:
+                    return
+                future = pending.pop(0)
+                while True:
+                    try:
+                        result = future.result(timeout=0.2)
+                        break
+                    except TimeoutError:
+                        if stop():
+                            return
+            except BrokenProcessPool:
+                if stop():  # stopped while a worker went away: the run ends as asked
+                    return
+                raise BagError('a worker process ended abruptly (killed, or out of '
+                               'memory?); try fewer --workers') from None
+            yield result
 
     def close(self) -> None:
         """Stop the workers: at once if a segment is still running (an interrupted run),
@@ -446,7 +457,7 @@ class LocalEngine(Engine):
         if any(not future.done() for future in self._futures):
             for process in processes:  # a segment in progress is abandoned
                 if process.is_alive():
-                    process.terminate()
+                    process.kill()  # (workers ignore SIGTERM: _init_worker)
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
