@@ -36,7 +36,8 @@ Frames without output are counted and logged with a reason: ``size_mismatch``,
 
 ``parallel_frames`` > 1 matches that many frames at once on worker threads (each with its
 own matcher and buffers) and publishes them in stamp order (``ros/workers.py``); the
-offline harness always matches frame by frame.
+offline harness always matches frame by frame, each frame on ``threads x parallel_frames``
+threads (the same output).
 """
 
 from __future__ import annotations
@@ -341,6 +342,11 @@ class SgmStereoNode(DepthNode):
             return
         params = sgm_params(values)
         threads = values['threads']
+        if self.sink is not None and threads and values['parallel_frames'] > 1:
+            # the offline harness matches frame by frame: the cores that parallel_frames
+            # would give several frames go to the one frame (the same output whatever the
+            # thread count)
+            threads *= values['parallel_frames']
         delta_d = SUBPIXEL_STEP if values['subpixel'] != 'none' else 1.0
 
         def compute() -> tuple[tuple[Any, Any, Any], float]:

@@ -375,3 +375,33 @@ def test_a_census_rule_is_the_same_in_the_core_and_in_the_node(node: Any,
         assert not rejected.successful
         assert 'SGM parameter P2=16000: must be <= 7936 with 8 paths' in rejected.reason
         assert all(r.successful for r in tune(P2=7936.0, paths=8))
+
+
+def test_offline_the_cores_of_parallel_frames_go_to_the_one_frame(context: Context,
+                                                                 monkeypatch: Any) -> None:
+    """The offline harness (a sink: `process`) matches frame by frame, so with threads: 1,
+    parallel_frames: 2 (the shipped graph) the matcher ran on one thread and left a core to
+    the bag writer alone; it now matches each frame on 2, with the same output."""
+    seen: list[int] = []
+    real = SgmMatcher.match
+
+    def spy(self: SgmMatcher, *args: Any, **kwargs: Any) -> Any:
+        seen.append(numba.get_num_threads())
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(SgmMatcher, 'match', spy)
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('parallel_frames', value=2),
+        Parameter('threads', value=1)])
+    capture(node)
+    try:
+        node.on_frame(*_inputs())
+    finally:
+        node.destroy_node()
+    assert seen == [min(2, numba.config.NUMBA_NUM_THREADS)]  # (clamped to the cores)
+    numba.set_num_threads(1)
+    expected = real(SgmMatcher(sgm_params(node.params.values)), FRAME.left_rect_gt,
+                    FRAME.right_rect_gt)
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
+                                  expected.disparity)
