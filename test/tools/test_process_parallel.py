@@ -4,6 +4,7 @@ rules on their own; progress, the summary line and the command line."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import io
 import os
@@ -351,10 +352,14 @@ def test_a_worker_that_dies_is_one_error_line(stereo_bag: Path, tmp_path: Path,
     """A worker killed (the out-of-memory killer, say) while it runs a segment: a
     BagError that `process` prints in one line (it was a BrokenProcessPool traceback)."""
     engine = LocalEngine(1)
+    killed: list[int] = []
 
-    def stop() -> bool:  # asked while the segment runs: the worker is killed then
-        for process in list(engine._pool._processes.values()):
-            os.kill(process.pid, signal.SIGKILL)
+    def stop() -> bool:  # asked while the segment runs: the worker is killed then, once
+        if not killed:
+            for process in list(engine._pool._processes.values()):
+                with contextlib.suppress(ProcessLookupError):  # (gone already)
+                    os.kill(process.pid, signal.SIGKILL)
+                killed.append(process.pid)
         return False
 
     try:
