@@ -19,6 +19,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.errors import BagError
 from depth_nodes.graph.description import load_graph_config
+from depth_nodes.ros.dds import PROFILE_VARIABLES
 from depth_nodes.sim import StereoSimConfig
 from depth_nodes.sim.projector import ProjectorSimConfig
 from depth_nodes.sim.stereo import simulate_stereo
@@ -293,9 +294,14 @@ def _outputs(result: SegmentResult) -> list[tuple[str, str, bytes]]:
 
 @pytest.fixture
 def worker_env(monkeypatch: pytest.MonkeyPatch, ros_env: dict[str, str]) -> None:
-    """run_segment sets a worker's discovery variables: restored after the test."""
+    """run_segment sets a worker's discovery and transport variables in its process (here
+    the test's): each is restored after the test, set or not."""
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    monkeypatch.delenv('ROS_STATIC_PEERS', raising=False)
+    for name in ('ROS_STATIC_PEERS', 'FASTDDS_BUILTIN_TRANSPORTS', *PROFILE_VARIABLES):
+        value = os.environ.get(name)
+        monkeypatch.setenv(name, value or '')  # recorded: put back as it was
+        if value is None:
+            monkeypatch.delenv(name)
 
 
 def test_a_spill_file_is_written_over_by_the_next_segment(
@@ -367,3 +373,41 @@ def test_a_worker_that_dies_is_one_error_line(stereo_bag: Path, tmp_path: Path,
             list(engine.map([_job(stereo_bag, 0, tmp_path)], stop))
     finally:
         engine.close()
+
+
+_SHM_PROBE = """
+import os, sys
+import rclpy
+from rclpy.context import Context
+from depth_nodes.ros.dds import use_large_message_profile
+use_large_message_profile()  # as every depth-nodes command does
+if sys.argv[1] == 'worker':
+    from depth_nodes.tools.bags.parallel import _worker_environment
+    _worker_environment()
+before = set(os.listdir('/dev/shm'))
+context = Context()
+rclpy.init(args=[], context=context)
+node = rclpy.create_node('probe', context=context)
+print(sorted(f for f in set(os.listdir('/dev/shm')) - before if f.startswith('fastrtps_')))
+node.destroy_node()
+rclpy.shutdown(context=context)
+"""
+
+
+def test_a_worker_has_no_shared_memory_segment_to_leave_behind(
+        ros_env: dict[str, str]) -> None:
+    """A worker killed when a run stops (SIGINT, SIGTERM, an error) left its Fast DDS
+    shared-memory segment in /dev/shm for good, 70 MB each. A worker routes its messages
+    in-process: its participant now has no shared-memory transport, so no segment (the
+    same probe without it shows the files one would be left with)."""
+    import ast
+    import subprocess
+    import sys
+
+    def new_files(mode: str) -> list[str]:
+        out = subprocess.run([sys.executable, '-c', _SHM_PROBE, mode], env=ros_env,
+                             capture_output=True, text=True, check=True)
+        return list(ast.literal_eval(out.stdout.strip().splitlines()[-1]))
+
+    assert any(not f.startswith('fastrtps_port') for f in new_files('plain'))
+    assert new_files('worker') == []

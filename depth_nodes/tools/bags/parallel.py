@@ -112,13 +112,7 @@ def segments(start_ns: int, end_ns: int, count: int) -> list[Segment]:
 
 def run_segment(job: SegmentJob) -> SegmentResult:
     """Run the graph over one segment (in a worker process or actor)."""
-    # A worker routes its messages in-process: it discovers no other participant, whatever
-    # the caller's environment says. With the caller's LOCALHOST (as in the tests) the
-    # workers' participants found each other, and one worker once hung for good at its
-    # end: Fast DDS's set_listener spinning while a discovery thread (a participant that
-    # went away) waited on the lock it held.
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
-    os.environ.pop('ROS_STATIC_PEERS', None)
+    _worker_environment()
     import rclpy
     from rclpy.context import Context
     from rclpy.impl.logging_severity import LoggingSeverity
@@ -232,6 +226,32 @@ def run_segment(job: SegmentJob) -> SegmentResult:
         if spill is not None:
             spill.close()
     return result
+
+
+def _worker_environment() -> None:
+    """A worker routes its messages in-process: its participant discovers no other one and
+    has no shared-memory transport, whatever the caller's environment says.
+
+    * Discovery: with the caller's LOCALHOST (as in the tests) the workers' participants
+      found each other, and one worker once hung for good at its end: Fast DDS's
+      set_listener spinning while a discovery thread (a participant that went away) waited
+      on the lock it held.
+    * Shared memory: a participant's 64 MiB segment, a file in /dev/shm, is removed only
+      when it exits cleanly; each worker killed when a run was stopped (SIGINT, SIGTERM) or
+      failed left 70 MB behind, for good. The package's own large-message profile is
+      dropped for the worker (a profile of the user's is kept) and the builtin transports
+      are UDP only (with discovery off, localhost mode would add shared memory back).
+
+    Set before the worker's first participant.
+    """
+    from depth_nodes.ros.dds import PROFILE, PROFILE_VARIABLES
+
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'OFF'
+    os.environ.pop('ROS_STATIC_PEERS', None)
+    for name in PROFILE_VARIABLES:
+        if os.environ.get(name) == str(PROFILE):
+            del os.environ[name]
+    os.environ['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
 
 
 def _drop_counts(nodes: list[Any]) -> dict[tuple[str, str], int]:
