@@ -126,8 +126,10 @@ def run_segment(job: SegmentJob) -> SegmentResult:
     spill = None
     if job.spill_dir is not None:  # bytes through a file: no pickling of the clouds
         result.spill = spill_path(job)
-        # a file an earlier segment used is written over, not truncated (claim_spill)
-        spill = open(result.spill, 'r+b' if os.path.exists(result.spill) else 'wb')  # noqa: SIM115 (closed in the finally below)
+        # a file an earlier segment used is written over, not truncated (claim_spill);
+        # closed in the finally below
+        mode = 'r+b' if os.path.exists(result.spill) else 'wb'
+        spill = open(result.spill, mode)  # noqa: SIM115
     context = Context()
     rclpy.init(args=[], context=context)
     nodes: list[Any] = []
