@@ -154,7 +154,7 @@ def run_segment(job: SegmentJob) -> SegmentResult:
                     data: bytes | tuple[int, int] = serialize(msg, msgtype)
                     if spill is not None:
                         try:
-                            data = (spill.tell(), spill.write(data))  # type: ignore[arg-type]
+                            data = (spill.tell(), spill.write(data))
                         except OSError as exc:
                             failed.append(BagError(
                                 f"cannot write a worker's outputs to {job.spill_dir}: "
