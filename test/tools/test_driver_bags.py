@@ -251,3 +251,29 @@ def test_the_hint_names_what_would_feed_the_graph(tmp_path: Path) -> None:
                   '--params', str(REPO / 'config' / 'disparity_64.yaml')])
     assert ok.returncode == 0, ok.stderr
     assert '/rs/points2' in ok.stdout
+
+
+def test_a_full_disk_under_convert_is_one_line_naming_the_output(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The output's own error, without the input bag's path in front of it (which read as
+    if the input were at fault), and no half-written output."""
+    import errno
+    import os
+
+    import depth_nodes.tools.bags.convert as convert
+    from depth_nodes.errors import BagError
+    from depth_nodes.tools.bags.io import BagWriter
+
+    class FullDisk(BagWriter):
+        def write(self, *args: Any, **kwargs: Any) -> None:
+            if sum(self.counts.values()) == 5:
+                self._fail(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
+            super().write(*args, **kwargs)
+
+    monkeypatch.setattr(convert, 'BagWriter', FullDisk)
+    out = tmp_path / 'out'
+    with pytest.raises(BagError) as raised:
+        convert_bag(REPO / 'bags' / 'stereo_vga', out, ConvertOptions(namespace='/camera'))
+    assert str(raised.value) == (f'cannot write the bag {out}: No space left on device; '
+                                 f'{out} not written')
+    assert not out.exists()

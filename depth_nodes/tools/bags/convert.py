@@ -27,7 +27,7 @@ from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.graph.description import checked_namespace
 from depth_nodes.ros.image import array_to_image, image_to_array, to_rgb8
 from depth_nodes.ros.transport import compress_image
-from depth_nodes.tools.bags.io import BagReader, BagWriter, remove_bag
+from depth_nodes.tools.bags.io import BagReader, BagWriter
 from depth_nodes.tools.signals import stop_requested
 
 IMAGE = 'sensor_msgs/msg/Image'
@@ -137,6 +137,7 @@ def convert_bag(in_bag: str | Path, out_bag: str | Path, options: ConvertOptions
                         writer.write(topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype,
                                      qos=reader.qos.get(bag_msg.topic, ()))
         except DepthNodesError as exc:  # nothing half-written is left behind
-            remove_bag(out_bag)
-            raise BagError(f'{in_bag}: {exc}; {out_bag} not written') from None
+            writer.discard()
+            where = '' if writer.failed else f'{in_bag}: '  # the output's own error names it
+            raise BagError(f'{where}{exc}; {out_bag} not written') from None
         return dict(writer.counts)

@@ -285,6 +285,11 @@ class BagWriter(_Closing):
             self._fail(exc)
         self.counts[topic] += 1
 
+    @property
+    def failed(self) -> bool:
+        """Whether a write failed (the bag is incomplete)."""
+        return self._failed
+
     def _fail(self, exc: OSError) -> None:
         self._failed = True
         raise BagError(f'cannot write the bag {self.path}: {exc.strerror or exc}') from None
