@@ -301,21 +301,27 @@ class BagWriter(_Closing):
         if self._closed:
             return
         self._closed = True
-        if self._failed:
-            if self._chunks is not None:
-                with contextlib.suppress(Exception):
-                    self._chunks.finish()
+        error = None
+        if not self._failed:
+            try:
+                self._writer.close()
+                return
+            except OSError as exc:  # the summary or metadata.yaml
+                error = exc
+        self._abandon()
+        if error is not None:
+            self._fail(error)
+
+    def _abandon(self) -> None:
+        """Stop writing after a failed write; remove the incomplete bag unless
+        ``keep_partial``."""
+        if self._chunks is not None:
             with contextlib.suppress(Exception):
-                self._writer.storage.bio.close()  # type: ignore[union-attr]
-            if not self.keep_partial and self.path.is_dir():
-                _remove_tree(self.path)
-            return
-        try:
-            self._writer.close()
-        except OSError as exc:  # the summary or metadata.yaml
-            if not self.keep_partial and self.path.is_dir():
-                _remove_tree(self.path)
-            self._fail(exc)
+                self._chunks.finish()
+        with contextlib.suppress(Exception):
+            self._writer.storage.bio.close()  # type: ignore[union-attr]
+        if not self.keep_partial and self.path.is_dir():
+            _remove_tree(self.path)
 
     def discard(self) -> None:
         """Stop writing and remove the bag folder (an output that can be made again)."""
