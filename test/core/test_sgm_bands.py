@@ -160,6 +160,38 @@ def test_every_thread_count_gives_the_same_result(paths: int, memory_mb: float,
     assert np.median(valid) == 4
 
 
+@pytest.mark.parametrize('search', ['full', 'coarse'])
+@pytest.mark.parametrize(('paths', 'memory_mb'), [(8, 160.0), (8, 0.0), (5, 0.0)])
+def test_another_thread_count_reuses_the_volumes(paths: int, memory_mb: float,
+                                                 search: str) -> None:
+    """One matcher called on one, two, then one thread again (as ``bench sgm --busy``
+    does): the frame's volumes are allocated once, only the second worker's scratch is
+    added, and every call's output is a fresh matcher's bit for bit."""
+    left, right = _pair(70, 90, seed=5)
+    params = SgmParams(disparity_range=16, paths=paths, band_rows=9, memory_mb=memory_mb,
+                       band_overlap=12, border_cost=3.5, disparity_search=search)
+    two = min(2, numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+    before = numba.get_num_threads()
+    matcher = SgmMatcher(params)
+    try:
+        for threads in (1, two, 1, two):
+            numba.set_num_threads(threads)
+            got = matcher.match(left, right)
+            got_arrays = [a.copy() for a in (got.disparity, got.disparity_right,
+                                             got.cost_ratio)]
+            want = SgmMatcher(params).match(left, right)
+            for g, w in zip(got_arrays, (want.disparity, want.disparity_right,
+                                         want.cost_ratio), strict=True):
+                np.testing.assert_array_equal(g, w)
+    finally:
+        numba.set_num_threads(before)
+    ranged = search == 'coarse' and matcher.fallbacks == 0  # else the windows did not fit
+    assert ranged == (search == 'coarse' and memory_mb > 0)
+    assert matcher.allocations == (2 if ranged else 1)  # coarse: + its flat volume
+    volumes = matcher._ranged_buf if ranged else matcher._buf
+    assert len(volumes['workers']) == two
+
+
 def test_single_pass_bands_are_cache_sized_and_change_nothing(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """5 paths cut the image into bands of at most CACHED_BAND_BYTES (never below

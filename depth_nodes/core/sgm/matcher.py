@@ -277,11 +277,16 @@ class SgmMatcher:
         slots = 1 if whole else min(len(bands), max(SIZED_SLOTS, threads + 1))
         rows = h if whole else max(b.rows for b in bands)
         chunk = min(OVERLAP_CHUNK, max(b.reach - b.rows for b in bands)) if not whole else 0
-        shape = (h, w, n, p.paths, threads, census, tuple(bands), whole, slots)
-        if shape != self._shape:
-            def rings() -> tuple[tuple[Any, Any, Any], Any]:
-                return new_line_buffers(len(dirs), w, n)
+        # the thread count is not part of the key: a frame on another number of threads
+        # (bench sgm --busy alternates two and one) reuses the volumes and only adds the
+        # scratch of the extra workers (reallocating the 118 MB of a VGA frame's volumes
+        # on every such call cost more than the match itself under contention)
+        shape = (h, w, n, p.paths, census, tuple(bands), whole, slots)
 
+        def rings() -> tuple[tuple[Any, Any, Any], Any]:
+            return new_line_buffers(len(dirs), w, n)
+
+        if shape != self._shape:
             self._buf = {
                 'census': (np.empty((h, w), census), np.empty((h, w), census)),
                 'bands': bands,
@@ -290,18 +295,20 @@ class SgmMatcher:
                 'partial': [np.empty((rows, w, n), np.uint16) for _ in range(slots)],
                 'down': rings(),
                 'up': rings() if whole else None,
-                'workers': [{'rings': rings(), 'total': np.empty((w, n), np.uint16),
-                             'ltr': np.empty((2, w, n), np.uint16),
-                             'rtl': np.empty((2, w, n), np.uint16),
-                             'hlines': _lines(4, n),
-                             'keys': np.empty(w, np.uint32),
-                             'sample': np.empty((1, w, n), np.uint8),
-                             'below': np.empty((chunk, w, n), np.uint8)}
-                            for _ in range(threads)],
+                'workers': [],
                 **_outputs(h, w, dirs),
             }
             self._shape = shape
             self.allocations += 1
+        workers = self._buf['workers']
+        while len(workers) < threads:
+            workers.append({'rings': rings(), 'total': np.empty((w, n), np.uint16),
+                            'ltr': np.empty((2, w, n), np.uint16),
+                            'rtl': np.empty((2, w, n), np.uint16),
+                            'hlines': _lines(4, n),
+                            'keys': np.empty(w, np.uint32),
+                            'sample': np.empty((1, w, n), np.uint8),
+                            'below': np.empty((chunk, w, n), np.uint8)})
         self._update_table()
         return self._buf
 
@@ -454,7 +461,7 @@ class SgmMatcher:
         n = p.disparity_range
         dirs = VERTICAL_DIRECTIONS[p.paths]
         census = census_dtype((p.census_height, p.census_width))
-        shape = (h, w, n, p.paths, threads, census)
+        shape = (h, w, n, p.paths, census)  # the thread count: as in _buffers
         if shape != self._ranged_shape:
             def rings() -> tuple[tuple[Any, Any, Any], Any]:
                 return new_line_buffers(len(dirs), w, n)
@@ -466,16 +473,18 @@ class SgmMatcher:
                 'partial': np.empty(0, np.uint16),
                 'down': rings(),
                 'up': rings(),
-                'workers': [{'total': np.empty((w, n), np.uint16),
-                             'ltr': np.empty((w, n), np.uint16),
-                             'rtl': np.empty((w, n), np.uint16),
-                             'lines': np.empty((2, n + 2), np.uint16),
-                             'keys': np.empty(w, np.uint32)} for _ in range(threads)],
+                'workers': [],
                 **_outputs(h, w, dirs),
             }
             self._ranged_shape = shape
             self.allocations += 1
         b = self._ranged_buf
+        while len(b['workers']) < threads:
+            b['workers'].append({'total': np.empty((w, n), np.uint16),
+                                 'ltr': np.empty((w, n), np.uint16),
+                                 'rtl': np.empty((w, n), np.uint16),
+                                 'lines': np.empty((2, n + 2), np.uint16),
+                                 'keys': np.empty(w, np.uint32)})
         if b['cost'].size < cells:
             grown = max(cells, min(cells + cells // 4,
                                    int(p.memory_mb * 1e6) // ranged.CELL_BYTES))
