@@ -3,7 +3,9 @@ memory-bounded mode against a reference built from the plain per-path references
 
 from __future__ import annotations
 
+import os
 import threading
+import time
 
 import numba
 import numpy as np
@@ -42,6 +44,47 @@ def test_tasks_run_once_after_their_dependencies(threads: int) -> None:
     run_tasks([task(i) for i in range(40)], threads)
     assert sorted(done) == list(range(40))
     assert workers <= set(range(threads))
+
+
+def _affinities_seen(threads: int, allowed: set[int]) -> tuple[dict[int, set[int]], set[int]]:
+    """Run 12 tasks on ``threads`` workers from a thread allowed ``allowed``: the CPU set
+    each worker ran its tasks with, and the caller's set afterwards."""
+    seen: dict[int, set[int]] = {}
+    after: list[set[int]] = []
+    lock = threading.Lock()
+
+    def run(worker: int) -> None:
+        with lock:
+            seen.setdefault(worker, set()).update(os.sched_getaffinity(0))
+        time.sleep(0.002)  # long enough for the other worker to take tasks too
+
+    def caller() -> None:
+        os.sched_setaffinity(0, allowed)  # this thread only
+        run_tasks([Task(run) for _ in range(12)], threads)
+        after.append(os.sched_getaffinity(0))
+
+    thread = threading.Thread(target=caller)
+    thread.start()
+    thread.join()
+    return seen, after[0]
+
+
+def test_workers_are_pinned_to_distinct_cpus_of_the_allowed_set() -> None:
+    """With two threads and at least two allowed CPUs, each worker runs on a CPU of its
+    own (a core taken by another process then slows one worker, never both); the caller
+    gets its own set back. With one thread, or one allowed CPU, nothing is pinned."""
+    allowed = sorted(os.sched_getaffinity(0))
+    seen, after = _affinities_seen(1, set(allowed))
+    assert seen == {0: set(allowed)}
+    assert after == set(allowed)
+    seen, after = _affinities_seen(2, {allowed[0]})
+    assert all(cpus == {allowed[0]} for cpus in seen.values())  # within the user's set
+    assert after == {allowed[0]}
+    if len(allowed) >= 2:  # on a one-CPU machine there is nothing to pin to
+        seen, after = _affinities_seen(2, set(allowed))
+        assert seen  # whichever workers took tasks, each on its own CPU
+        assert all(cpus == {allowed[worker]} for worker, cpus in seen.items()), seen
+        assert after == set(allowed)
 
 
 def test_the_first_error_is_raised_and_stops_the_rest() -> None:

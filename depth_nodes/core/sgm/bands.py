@@ -91,6 +91,26 @@ class Task:
     priority: int = 0
 
 
+def _worker_cpus(threads: int) -> list[int]:
+    """One CPU of the calling thread's allowed set for each of ``threads`` workers while
+    they run a frame (none: no pinning, with one thread or fewer CPUs than threads).
+
+    With a core taken by another process, three threads share two cores, and Linux woke
+    a worker that had waited for a task on its waker's core: both workers then often
+    shared one core for a whole frame while the other process had the other one to itself
+    (the matcher got 104 - 128 % of a core from run to run). Pinned, the two workers
+    always run on both cores. ``depth-nodes bench sgm --busy 1`` (8 paths, two threads;
+    three runs each, in turn, 2026-11-26): contended 90.7 - 95.4 ms, 1.35 - 1.40x the quiet
+    time, against 110.5 - 117.5 ms (1.58 - 1.72x) unpinned; quiet frames do not change.
+    The caller's own affinity is restored after the frame, and a set restricted by the
+    user (``taskset``, a cpuset) is only ever narrowed within itself.
+    """
+    if threads < 2 or not hasattr(os, 'sched_getaffinity'):
+        return []
+    allowed = sorted(os.sched_getaffinity(0))
+    return allowed[:threads] if len(allowed) >= threads else []
+
+
 def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     """Run ``tasks`` on ``threads`` threads (the calling one included), each taking the
     ready task of lowest priority. ``run`` receives the worker's index, 0 .. threads - 1,
@@ -114,8 +134,12 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     state = {'finished': 0}
     errors: list[BaseException] = []
 
+    cpus = _worker_cpus(threads)
+
     def work(worker: int) -> None:
         numba.set_num_threads(1)  # each task is one thread's (ONE_THREAD_GUFUNC)
+        if cpus:
+            os.sched_setaffinity(0, {cpus[worker]})
         while True:
             with lock:
                 while not ready and not errors and state['finished'] < n:
@@ -143,6 +167,7 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     for thread in helpers:
         thread.start()
     own_threads = numba.get_num_threads()
+    own_cpus = os.sched_getaffinity(0) if cpus else None
     try:
         work(0)
     except BaseException as error:  # e.g. Ctrl-C while waiting: stop the helpers too
@@ -152,6 +177,8 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
         raise
     finally:
         numba.set_num_threads(own_threads)
+        if own_cpus is not None:
+            os.sched_setaffinity(0, own_cpus)
         for thread in helpers:
             thread.join()
     if errors:
