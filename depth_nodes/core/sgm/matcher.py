@@ -623,15 +623,21 @@ class _Frame:
             tasks += [Task(self._select(k), [down[k], up[k]], 2 * bands + k)
                       for k in range(bands)]
             return tasks
+        # per band its costs, its downward sweep (the chain) and its selection; the costs
+        # are a task of their own, so that a free thread makes the next bands' costs
+        # while the chain sweeps (into a slot whose last selection is done): the chain is
+        # then the sweeps alone
         first_band = len(tasks)
         slots = len(self.buf['cost'])
         for k in range(bands):
-            down_k = first_band + 2 * k
-            after = border if k == 0 else [down_k - 2]
+            cost_k = first_band + 3 * k
+            after = list(border)
             if k >= slots:
-                after.append(down_k - 2 * slots + 1)  # the selection that last used the slot
-            tasks.append(Task(self._down(k), after, priority=1))
-            tasks.append(Task(self._select(k), [down_k], priority=2))
+                after.append(cost_k - 3 * slots + 2)  # the selection that last used the slot
+            tasks.append(Task(self._band_cost(k), after, priority=1))
+            tasks.append(Task(self._down(k), [cost_k, *([cost_k - 2] if k else [])],
+                              priority=0))
+            tasks.append(Task(self._select(k), [cost_k + 1], priority=2))
         return tasks
 
     def _border(self) -> None:
@@ -676,14 +682,23 @@ class _Frame:
                                                        self.buf['workers'][worker]['sample'])
         return run
 
+    def _band_cost(self, k: int) -> Any:
+        """Bands in flight: the costs of band k, into its slot."""
+        def run(worker: int) -> None:
+            b = self.buf
+            band = b['bands'][k]
+            cost = self.inputs.rows(band.y0, b['cost'][k % len(b['cost'])][:band.rows])
+            if self.extrapolate:
+                fill_outside(cost, self.p.min_disparity, self.border_cost)
+        return run
+
     def _down(self, k: int) -> Any:
+        """Bands in flight: the downward sweep of band k, continuing band k - 1's paths."""
         def run(worker: int) -> None:
             p, b = self.p, self.buf
             band = b['bands'][k]
             slot = k % len(b['cost'])
-            cost = self.inputs.rows(band.y0, b['cost'][slot][:band.rows])
-            if self.extrapolate:
-                fill_outside(cost, p.min_disparity, self.border_cost)
+            cost = b['cost'][slot][:band.rows]
             (lb0, lb1, lb2), mbuf = b['down']
             sweep_down(cost, self.image, band.y0, band.rows, b['dxs'], b['dys'], int(p.P1),
                        int(p.P2), self.table, lb0, lb1, lb2, mbuf, b['partial'][slot])
