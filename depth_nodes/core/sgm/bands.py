@@ -91,9 +91,10 @@ class Task:
     priority: int = 0
 
 
-def _worker_cpus(threads: int) -> list[int]:
-    """One CPU of the calling thread's allowed set for each of ``threads`` workers while
-    they run a frame (none: no pinning, with one thread or fewer CPUs than threads).
+def _worker_cpus(threads: int, allowed: set[int]) -> list[int]:
+    """The CPU each of ``threads`` workers runs on while they match a frame, when the
+    workers are exactly as many as the CPUs ``allowed`` (the calling thread's set): one
+    each. Otherwise none: no pinning.
 
     With a core taken by another process, three threads share two cores, and Linux woke
     a worker that had waited for a task on its waker's core: both workers then often
@@ -102,13 +103,15 @@ def _worker_cpus(threads: int) -> list[int]:
     always run on both cores. ``depth-nodes bench sgm --busy 1`` (8 paths, two threads;
     three runs each, in turn, 2026-11-26): contended 90.7 - 95.4 ms, 1.35 - 1.40x the quiet
     time, against 110.5 - 117.5 ms (1.58 - 1.72x) unpinned; quiet frames do not change.
-    The caller's own affinity is restored after the frame, and a set restricted by the
-    user (``taskset``, a cpuset) is only ever narrowed within itself.
+
+    Fewer workers than CPUs are left to the scheduler: pinned to the first CPUs of the
+    set, two matchers in two processes (two cameras) would share those CPUs while the
+    others idled. The caller's own affinity is restored after the frame, and a set
+    restricted by the user (``taskset``, a cpuset) is only ever narrowed within itself.
     """
-    if threads < 2 or not hasattr(os, 'sched_getaffinity'):
+    if threads < 2 or len(allowed) != threads:
         return []
-    allowed = sorted(os.sched_getaffinity(0))
-    return allowed[:threads] if len(allowed) >= threads else []
+    return sorted(allowed)
 
 
 def run_tasks(tasks: Sequence[Task], threads: int) -> None:
@@ -134,7 +137,8 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     state = {'finished': 0}
     errors: list[BaseException] = []
 
-    cpus = _worker_cpus(threads)
+    own_cpus = os.sched_getaffinity(0) if hasattr(os, 'sched_getaffinity') else set()
+    cpus = _worker_cpus(threads, own_cpus)
 
     def work(worker: int) -> None:
         numba.set_num_threads(1)  # each task is one thread's (ONE_THREAD_GUFUNC)
@@ -167,7 +171,6 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     for thread in helpers:
         thread.start()
     own_threads = numba.get_num_threads()
-    own_cpus = os.sched_getaffinity(0) if cpus else None
     try:
         work(0)
     except BaseException as error:  # e.g. Ctrl-C while waiting: stop the helpers too
@@ -177,7 +180,7 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
         raise
     finally:
         numba.set_num_threads(own_threads)
-        if own_cpus is not None:
+        if cpus:
             os.sched_setaffinity(0, own_cpus)
         for thread in helpers:
             thread.join()

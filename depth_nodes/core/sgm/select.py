@@ -102,9 +102,9 @@ def _min_outside(total: U16, k_lo: int, k_hi: int, kbest: int) -> int:
 
     The (at most three) excluded entries are set to 65535, the largest uint16, for one
     plain reduction over the whole range, then put back: the same minimum. (Two reductions
-    either side of the winner, as before, each had a remainder of random length that ran
-    scalar: 10 of the selection's 35 ms a 640x480 frame on one thread; a masked single
-    loop ran on 64-bit lanes.) ``total`` is the caller's scratch row, so writable."""
+    either side of the winner, as before, each ended in a scalar remainder of random
+    length; a masked single loop ran on 64-bit lanes. docs/speed.md has the times.)
+    ``total`` is the caller's scratch row, so writable."""
     a = max(k_lo, kbest - 1)
     b = min(k_hi, kbest + 1)
     s0 = total[a]
@@ -265,7 +265,8 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
         total: (W, D) uint16 row scratch.
         left_to_right, right_to_left: (2, W, D) uint16 scratch: the horizontal paths of
             two rows.
-        keys: (W,) uint32 scratch for the right view (mirrored: W - 1 - xr).
+        keys: (W,) uint32 scratch for the right view, used as 2 W uint16: each right
+            pixel's best cost, then its disparity index (mirrored: W - 1 - xr).
         disparity: (H, W) float32 out: left disparity, NaN where invalid.
         disparity_right: (H, W) float32 out: right-view disparity, NaN where invalid.
         ratio: (H, W) float32 out: best / second-best aggregated cost of the left winner.
