@@ -96,6 +96,26 @@ def test_workers_are_pinned_one_per_cpu_when_they_are_as_many() -> None:
         assert after == two
 
 
+def test_a_refused_affinity_pins_nothing_and_fails_nothing(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the system refuses ``sched_setaffinity`` (a sandbox), every task still runs
+    once: pinning is an optimisation."""
+    from depth_nodes.core.sgm import bands
+
+    calls: list[set[int]] = []
+
+    def refuse(pid: int, cpus: set[int]) -> None:
+        calls.append(set(cpus))
+        raise PermissionError(1, 'Operation not permitted')
+
+    monkeypatch.setattr(bands.os, 'sched_getaffinity', lambda pid: {0, 1})
+    monkeypatch.setattr(bands.os, 'sched_setaffinity', refuse)
+    done: list[int] = []
+    run_tasks([Task(lambda worker, i=i: done.append(i)) for i in range(8)], 2)
+    assert sorted(done) == list(range(8))
+    assert calls  # it tried
+
+
 def test_the_first_error_is_raised_and_stops_the_rest() -> None:
     ran: list[int] = []
 

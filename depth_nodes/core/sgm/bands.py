@@ -17,6 +17,7 @@ thread count gives the same result bit for bit.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import os
 import threading
@@ -114,6 +115,14 @@ def _worker_cpus(threads: int, allowed: set[int]) -> list[int]:
     return sorted(allowed)
 
 
+def _set_cpus(cpus: set[int]) -> None:
+    """The calling thread's CPU affinity, if the system allows it (a sandbox may refuse
+    ``sched_setaffinity``, a CPU may have gone offline): pinning is an optimisation, never
+    a reason for a frame to fail."""
+    with contextlib.suppress(OSError):
+        os.sched_setaffinity(0, cpus)
+
+
 def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     """Run ``tasks`` on ``threads`` threads (the calling one included), each taking the
     ready task of lowest priority. ``run`` receives the worker's index, 0 .. threads - 1,
@@ -143,7 +152,7 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     def work(worker: int) -> None:
         numba.set_num_threads(1)  # each task is one thread's (ONE_THREAD_GUFUNC)
         if cpus:
-            os.sched_setaffinity(0, {cpus[worker]})
+            _set_cpus({cpus[worker]})
         while True:
             with lock:
                 while not ready and not errors and state['finished'] < n:
@@ -181,7 +190,7 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     finally:
         numba.set_num_threads(own_threads)
         if cpus:
-            os.sched_setaffinity(0, own_cpus)
+            _set_cpus(own_cpus)
         for thread in helpers:
             thread.join()
     if errors:
