@@ -109,6 +109,8 @@ def _worker_cpus(threads: int, allowed: set[int]) -> list[int]:
     set, two matchers in two processes (two cameras) would share those CPUs while the
     others idled. The caller's own affinity is restored after the frame, and a set
     restricted by the user (``taskset``, a cpuset) is only ever narrowed within itself.
+    The price: a pinned worker cannot move off a core that a real-time thread holds; its
+    current task waits, while the other worker takes every task still to come.
     """
     if threads < 2 or len(allowed) != threads:
         return []
