@@ -286,6 +286,8 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
     for _ in prange(1):  # one iteration: see ONE_THREAD_GUFUNC
         r_all, w, n = cost.shape
         ndir = dxs.shape[0] if upward else 0
+        cost_m = keys.view(np.uint16)[:w]  # the right view's candidates (uint16 pairs)
+        k_m = keys.view(np.uint16)[w:]
         for i in range(r_all if upward else rows):
             b = (r_all if upward else rows) - 1 - i  # band-relative row, bottom up
             y = y0 + b
@@ -323,8 +325,6 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
                                  left_to_right, lines)
                 _horizontal_pair(cost, image, p1, p2, p2_table, b, b_next, y0, False,
                                  right_to_left, lines)
-            cost_m = keys.view(np.uint16)[:w]  # the right view's candidates (uint16 pairs)
-            k_m = keys.view(np.uint16)[w:]
             for xr in range(w):  # (3) totals, left selection, right-view candidates
                 cost_m[xr] = np.uint16(65535)
                 k_m[xr] = np.uint16(65535)
