@@ -384,6 +384,9 @@ def main() -> None:
                   match_brightness=True, p2_adaptive_scale=8.0)
     h, w = left.shape
     n = p.disparity_range
+    if w % 16 or n % 16:
+        raise SystemExit(f'pixel_lanes: the width and the disparity range must be multiples'
+                         f' of 16, got {w} and {n}')
     inputs = _cost_inputs(left, right, p, (np.empty((h, w), np.uint32),
                                            np.empty((h, w), np.uint32)))
     cost = inputs.rows(0, np.empty((h, w, n), np.uint8))
