@@ -54,7 +54,7 @@ PARAMETERS = [
 ]
 
 
-def _cross_check(values: Mapping[str, Any]) -> str | None:
+def _check_values(values: Mapping[str, Any]) -> str | None:
     if values['max_range'] <= values['min_range']:
         return (f'max_range ({values["max_range"]:g}) must be greater than min_range '
                 f'({values["min_range"]:g})')
@@ -66,7 +66,7 @@ class DepthDisparityNode(DepthImageNode):
 
     def __init__(self, node_name: str = 'depth_disparity', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
+        self.params = NodeParameters(self, PARAMETERS, check_values=_check_values)
         values = self.params.values
         self.pub_disparity = self.add_output(DisparityImage, 'left/disparity')
         self.add_synced_inputs(

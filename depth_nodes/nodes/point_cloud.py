@@ -110,7 +110,7 @@ def _reprojection(values: Mapping[str, Any]) -> ReprojectParams:
     return ReprojectParams(**{f.name: values[f.name] for f in fields(ReprojectParams)})
 
 
-def _cross_check(values: Mapping[str, Any]) -> str | None:
+def _check_values(values: Mapping[str, Any]) -> str | None:
     try:
         _reprojection(values).validate()
     except ArgumentError as exc:
@@ -128,7 +128,7 @@ class PointCloudNode(DepthNode):
 
     def __init__(self, node_name: str = 'point_cloud', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
+        self.params = NodeParameters(self, PARAMETERS, check_values=_check_values)
         values = self.params.values
         self.use_color: bool = values['use_color']
         self.use_confidence: bool = values['use_confidence']

@@ -54,8 +54,8 @@ from rclpy.qos import qos_profile_system_default
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
-from depth_nodes.core.baseline import BmSettings, SgbmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.core.cross_check import lr_threshold
+from depth_nodes.core.opencv_stereo import BmSettings, SgbmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.core.settings import Rule, problem
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
@@ -167,7 +167,7 @@ PARAMETERS = [
 ]
 
 
-def _cross_check(values: Mapping[str, Any]) -> str | None:
+def _check_values(values: Mapping[str, Any]) -> str | None:
     """Reject combinations the chosen matcher does not accept, with the reason."""
     algorithm = values['stereo_algorithm']
     if algorithm == CENSUS_SGM:
@@ -251,7 +251,7 @@ class SgmStereoNode(DepthNode):
 
     def __init__(self, node_name: str = 'sgm_stereo', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.params = NodeParameters(self, PARAMETERS, cross_check=_cross_check)
+        self.params = NodeParameters(self, PARAMETERS, check_values=_check_values)
         values = self.params.values
         # matchers (each with its buffers) for the frames in flight, reused frame to frame
         self._matchers: queue.SimpleQueue[SgmMatcher] = queue.SimpleQueue()

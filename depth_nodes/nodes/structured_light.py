@@ -49,7 +49,7 @@ from depth_nodes.core.structured_light import (
     PatternSet,
     ProjectorGeometry,
     camera_rays,
-    depth_to_points,
+    points_on_rays,
     speckle_depth,
 )
 from depth_nodes.core.structured_light.framing import (
@@ -314,7 +314,7 @@ class StructuredLightNode(DepthNode):
     def _publish(self, depth: NDArray[np.float32], confidence: NDArray[np.float32],
                  header: Header, values: Mapping[str, Any]) -> None:
         self.pub_depth.publish(array_to_image(depth, '32FC1', header))
-        points = depth_to_points(self._rays, depth)
+        points = points_on_rays(self._rays, depth)
         self.pub_points.publish(build_pointcloud(
             points, header, pad=not values['avoid_point_cloud_padding']))
         self.pub_confidence.publish(array_to_image(confidence, '32FC1', header))

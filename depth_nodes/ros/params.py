@@ -3,10 +3,10 @@
 A node lists :class:`ParamSpec` entries. :class:`NodeParameters` declares them (with
 description, range and read-only flag, so ``ros2 param describe`` shows them), rejects a
 change that is out of range, of the wrong type (rclpy checks these against the
-descriptor), or that a spec's own check or the node's cross-check refuses (with the reason
-returned to the caller), and otherwise swaps in a new immutable snapshot of all values. A
-node reads :attr:`NodeParameters.values` once at the start of a frame, so every frame sees
-one consistent set and a change applies from the next frame on.
+descriptor), or that a spec's own check or the node's check of the whole set refuses
+(with the reason returned to the caller), and otherwise swaps in a new immutable snapshot
+of all values. A node reads :attr:`NodeParameters.values` once at the start of a frame, so
+every frame sees one consistent set and a change applies from the next frame on.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from depth_nodes.ros.transport import TRANSPORTS
 
 #: Returns None when a value is acceptable, else the reason it is not.
 Check = Callable[[Any], str | None]
-CrossCheck = Callable[[Mapping[str, Any]], str | None]
+ValuesCheck = Callable[[Mapping[str, Any]], str | None]
 
 
 @dataclass(frozen=True)
@@ -86,16 +86,16 @@ class NodeParameters:
     Args:
         node: The node.
         specs: Its parameters.
-        cross_check: Validation of the whole set (e.g. two values that must agree).
+        check_values: Validation of the whole set (e.g. two values that must agree).
 
     Raises:
         ConfigError: A start-up value (override) is invalid.
     """
 
     def __init__(self, node: Node, specs: list[ParamSpec],
-                 cross_check: CrossCheck | None = None) -> None:
+                 check_values: ValuesCheck | None = None) -> None:
         self._specs = {s.name: s for s in specs}
-        self._cross_check = cross_check
+        self._check_values = check_values
         self._lock = threading.Lock()
         values: dict[str, Any] = {}
         for spec in specs:
@@ -126,8 +126,8 @@ class NodeParameters:
                 reason = spec.check(value)
                 if reason:
                     return f'{name}={value!r} rejected: {reason}'
-        if self._cross_check is not None:
-            return self._cross_check(candidate)
+        if self._check_values is not None:
+            return self._check_values(candidate)
         return None
 
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
@@ -168,10 +168,10 @@ def specs_from(params: type, names: tuple[str, ...] | list[str], *,
     return [spec_of(name, *table[name], prefix=prefix) for name in names]
 
 
-def validated(build: Callable[[Mapping[str, Any]], Any]) -> CrossCheck:
-    """The cross-check of a node whose settings make a core ``*Params``: ``build`` makes it
-    from a parameter snapshot, and its ``validate()`` error is the reason a change is
-    refused."""
+def validated(build: Callable[[Mapping[str, Any]], Any]) -> ValuesCheck:
+    """The check of the whole set of a node whose settings make a core ``*Params``:
+    ``build`` makes it from a parameter snapshot, and its ``validate()`` error is the
+    reason a change is refused."""
     def check(values: Mapping[str, Any]) -> str | None:
         try:
             build(values).validate()

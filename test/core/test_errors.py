@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from depth_nodes.core.baseline import BmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.core.camera import CameraModel, StereoModel
 from depth_nodes.core.confidence import ConfidenceTerms, confidence_map
 from depth_nodes.core.cross_check import (
@@ -23,6 +22,7 @@ from depth_nodes.core.cross_check import (
 )
 from depth_nodes.core.groundtruth import nonoccluded_from_right, read_disparity_file, write_pfm
 from depth_nodes.core.metrics import disparity_errors, optimal_auc, sparsification_auc
+from depth_nodes.core.opencv_stereo import BmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.core.rectify import Rectifier, interpolation_flag
 from depth_nodes.core.reproject import depth_std, reproject_disparity
 from depth_nodes.core.sgm import SgmMatcher, SgmParams

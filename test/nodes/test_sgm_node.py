@@ -13,7 +13,7 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 from ros_helpers import capture, tuner
 
-from depth_nodes.core.baseline import opencv_sgbm
+from depth_nodes.core.opencv_stereo import opencv_sgbm
 from depth_nodes.core.sgm import SgmMatcher
 from depth_nodes.nodes.sgm_stereo import SgmStereoNode, opencv_settings, sgm_params
 from depth_nodes.ros.camera_info import model_to_camera_info

@@ -13,7 +13,7 @@ from helpers import REPO
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from depth_nodes.core.baseline import BmSettings, SgbmSettings, opencv_bm, opencv_sgbm
+from depth_nodes.core.opencv_stereo import BmSettings, SgbmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.nodes.sgm_stereo import SgmStereoNode
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array

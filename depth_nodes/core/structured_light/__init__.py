@@ -25,9 +25,9 @@ from depth_nodes.core.structured_light.speckle import (
 from depth_nodes.core.structured_light.triangulate import (
     ProjectorGeometry,
     camera_rays,
-    depth_to_points,
     epipolar_distance,
     pixel_rays,
+    points_on_rays,
     triangulate_columns,
     triangulate_pixels,
 )
@@ -42,7 +42,6 @@ __all__ = [
     'SpeckleMatcher',
     'camera_rays',
     'decode_sequence',
-    'depth_to_points',
     'epipolar_distance',
     'generate_patterns',
     'gray_code',
@@ -50,6 +49,7 @@ __all__ = [
     'match_speckle',
     'match_speckle_reference',
     'pixel_rays',
+    'points_on_rays',
     'shift_range',
     'shift_to_depth',
     'speckle_depth',

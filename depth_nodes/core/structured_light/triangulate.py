@@ -211,6 +211,6 @@ def _finish(lam: F64, rays: F64, geometry: ProjectorGeometry) -> F32:
     return np.where(bad, np.nan, depth).astype(np.float32)
 
 
-def depth_to_points(rays: F64, depth: F32) -> F32:
+def points_on_rays(rays: F64, depth: F32) -> F32:
     """(H, W, 3) float32 points ``Z * ray`` (rays with z = 1), NaN where depth is NaN."""
     return (rays * depth[..., None]).astype(np.float32)

@@ -263,7 +263,7 @@ def cold_start_sgm() -> dict[str, float]:
 _PEAK = '''
 import json, sys
 import cv2, numba, numpy as np
-from depth_nodes.core.baseline import TUNED_HH, TUNED_SGBM, opencv_sgbm
+from depth_nodes.core.opencv_stereo import TUNED_HH, TUNED_SGBM, opencv_sgbm
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.tools.bench.sgm import bench_pair
 method, w, h, n, paths, threads = sys.argv[1], *map(int, sys.argv[2:])
@@ -369,7 +369,7 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
     ``busy``, again with that many cores kept busy by other processes."""
     import numba
 
-    from depth_nodes.core.baseline import TUNED_HH, TUNED_SGBM, opencv_sgbm
+    from depth_nodes.core.opencv_stereo import TUNED_HH, TUNED_SGBM, opencv_sgbm
     from depth_nodes.core.sgm import SgmMatcher, SgmParams
 
     w, h = size

@@ -12,7 +12,7 @@ a pixel the check dropped is not counted as an error ranked last, which would me
 check), and over the pixels its own disparity has, ranking that disparity's errors.
 
 OpenCV's StereoSGBM runs on the same rectified pair as reference, with stereo_image_proc's
-defaults and over an 18-setting grid (:data:`~depth_nodes.core.baseline.SGBM_GRID`) whose
+defaults and over an 18-setting grid (:data:`~depth_nodes.core.opencv_stereo.SGBM_GRID`) whose
 best setting by each headline figure is reported: the pipeline's
 ``<ns>/left|right/image_rect`` when the bag has them, otherwise the raw images rectified
 with their CameraInfo.
@@ -31,17 +31,17 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.baseline import (
-    SGBM_GRID,
-    STEREO_IMAGE_PROC_DEFAULTS,
-    opencv_range,
-    opencv_sgbm,
-)
 from depth_nodes.core.metrics import (
     DepthScores,
     depth_errors,
     disparity_errors,
     sparsification_auc,
+)
+from depth_nodes.core.opencv_stereo import (
+    SGBM_GRID,
+    STEREO_IMAGE_PROC_DEFAULTS,
+    opencv_range,
+    opencv_sgbm,
 )
 from depth_nodes.core.rectify import rectify_image
 from depth_nodes.errors import ArgumentError, BagError
