@@ -78,8 +78,6 @@ def _models(info_msg: CameraInfo) -> tuple[CameraModel, CameraModel]:
 class RectifyNode(DepthNode):
     """Undistorts and rectifies one camera's raw images with its CameraInfo."""
 
-    reads_camera_images = True
-
     def __init__(self, node_name: str = 'rectify', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS)

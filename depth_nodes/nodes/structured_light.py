@@ -101,8 +101,6 @@ PARAMETERS = [
 class StructuredLightNode(DepthNode):
     """Decodes Gray-code / phase-shift sequences or speckle images into depth."""
 
-    reads_camera_images = True
-
     def __init__(self, node_name: str = 'structured_light', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS, validated(_settings))

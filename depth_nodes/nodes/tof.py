@@ -111,8 +111,6 @@ def rectified_info(camera: CameraModel, header: Any) -> CameraInfo:
 class ToFNode(DepthNode):
     """Raw correlation frames -> depth, amplitude, confidence, points."""
 
-    reads_camera_images = True
-
     def __init__(self, node_name: str = 'tof', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS, validated(_settings))
