@@ -38,6 +38,11 @@ from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 
+try:  # every ROS 2 install has tf2_msgs, the PyPI wheels do not: depth_in_rgb is then needed
+    from tf2_msgs.msg import TFMessage
+except ImportError:
+    TFMessage = None
+
 
 def _check_pose(value: list[float]) -> str | None:
     if len(value) == 0:
@@ -77,12 +82,10 @@ class RegisterNode(DepthImageNode):
         values = self.params.values
         self.tree = TransformTree()
         if not list(values['depth_in_rgb']):
-            try:
-                from tf2_msgs.msg import TFMessage
-            except ImportError:
+            if TFMessage is None:
                 raise ConfigError('register_depth: set depth_in_rgb (x y z qx qy qz qw), or run on '
                                   'a ROS 2 install, whose tf2_msgs lets it read /tf and '
-                                  '/tf_static (the PyPI wheels have none)') from None
+                                  '/tf_static (the PyPI wheels have none)')
             self.add_input(TFMessage, '/tf_static', self.on_transforms, qos=TF_STATIC_QOS,
                            check_stamps=False)
             self.add_input(TFMessage, '/tf', self.on_transforms, qos=100, check_stamps=False)

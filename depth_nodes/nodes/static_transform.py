@@ -25,6 +25,11 @@ from depth_nodes.errors import ConfigError
 from depth_nodes.ros.node import DepthNode, run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 
+try:  # every ROS 2 install has tf2_msgs, the PyPI wheels do not: the node then says so
+    from tf2_msgs.msg import TFMessage
+except ImportError:
+    TFMessage = None
+
 PARAMETERS = [
     ParamSpec('parent_frame', 'base_link', 'Frame the camera is mounted on', read_only=True),
     ParamSpec('child_frame', 'left_camera_optical_frame', 'The camera\'s frame (its images\' '
@@ -69,12 +74,10 @@ class StaticTransformNode(DepthNode):
             raise ConfigError('static_transform: parent_frame and child_frame must be two '
                               f'different names, got {values["parent_frame"]!r} and '
                               f'{values["child_frame"]!r}')
-        try:
-            from tf2_msgs.msg import TFMessage
-        except ImportError:
+        if TFMessage is None:
             raise ConfigError('static_transform needs tf2_msgs, which every ROS 2 install '
                               'has and the PyPI wheels do not: run it on a ROS 2 install, or '
-                              'use tf2_ros\'s static_transform_publisher') from None
+                              'use tf2_ros\'s static_transform_publisher')
         self.message = TFMessage(transforms=[transform(values,
                                                        self.get_clock().now().to_msg())])
         self.add_output(TFMessage, '/tf_static', qos=TF_STATIC_QOS).publish(self.message)

@@ -10,8 +10,6 @@ rounded to millimetres); registration as in test/core/test_depth_image.py.
 
 from __future__ import annotations
 
-import sys
-import types
 from types import SimpleNamespace
 from typing import Any
 
@@ -26,6 +24,7 @@ from ros_helpers import capture, header
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.depth_image import Intrinsics
 from depth_nodes.errors import ConfigError
+from depth_nodes.nodes import register_depth
 from depth_nodes.nodes.convert_metric import ConvertMetricNode
 from depth_nodes.nodes.depth_disparity import DepthDisparityNode
 from depth_nodes.nodes.point_cloud_xyz import PointCloudXyzNode
@@ -289,11 +288,7 @@ def fake_tf2(monkeypatch: pytest.MonkeyPatch) -> None:
     """tf2_msgs is not among the PyPI wheels: a stand-in message type lets the node
     subscribe; the test then hands it transforms directly."""
     from diagnostic_msgs.msg import DiagnosticArray
-    package = types.ModuleType('tf2_msgs')
-    module = types.ModuleType('tf2_msgs.msg')
-    module.TFMessage = DiagnosticArray  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, 'tf2_msgs', package)
-    monkeypatch.setitem(sys.modules, 'tf2_msgs.msg', module)
+    monkeypatch.setattr(register_depth, 'TFMessage', DiagnosticArray)
 
 
 def _tf(parent: str, child: str, pose: list[float]) -> Any:
@@ -326,7 +321,7 @@ def test_register_takes_the_extrinsics_from_tf(context: Context, fake_tf2: None)
 
 def test_register_without_tf2_needs_depth_in_rgb(context: Context,
                                                  monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(sys.modules, 'tf2_msgs', None)
+    monkeypatch.setattr(register_depth, 'TFMessage', None)  # as on the PyPI wheels
     with pytest.raises(ConfigError, match='register_depth: set depth_in_rgb'):
         RegisterNode(context=context)
 
