@@ -5,6 +5,8 @@ Subscribes ``image_raw`` (16UC1 mm, 0 unknown; a 32FC1 image is passed on with i
 unknown pixels, zero or not finite, made NaN; ``image_transport`` raw or compressedDepth)
 and publishes ``image``: 32FC1 metres, NaN unknown (REP 118), with the input's header.
 
+Outputs are computed only while subscribed (lazy), or always offline.
+
 Frames without output are counted and logged: ``unsupported_encoding`` and the decoding
 reasons.
 """
@@ -35,7 +37,9 @@ class ConvertMetricNode(DepthImageNode):
                        transport=self.params.values['image_transport'])
 
     def on_frame(self, msg: Any) -> None:
-        """Convert one depth image."""
+        """Convert one depth image (while ``image`` is wanted)."""
+        if self.skip_unwanted(self.pub_image.wanted):
+            return
         read = self.read_depth(msg, 'image_raw')
         if read is not None:
             self.pub_image.publish(array_to_image(read[0], '32FC1', msg.header))

@@ -23,6 +23,9 @@ synchronisation ones change at runtime and apply from the next frame): ``disp12_
 ``speckle_size``, ``speckle_range``, ``fill_holes``, ``fill_mode``, ``median_size``,
 ``keep_extrapolated``, ``confidence_window``, ``filled_confidence``.
 
+Outputs are computed only while subscribed (lazy), or always offline (the check yields
+both at once: an output nobody wants is not built).
+
 Frames without output are counted and logged with a reason: ``disparity_encoding`` (a
 DisparityImage not 32FC1), ``unsupported_encoding`` (cost_ratio not 32FC1),
 ``malformed_image``, ``size_mismatch`` (the three inputs differ in size),
@@ -89,7 +92,11 @@ class CrossCheckNode(DepthNode):
 
     def on_frame(self, disparity_msg: DisparityImage, right_msg: DisparityImage,
                  cost_msg: Image) -> None:
-        """Check one synchronised set and publish ``disparity_checked`` and ``confidence``."""
+        """Check one synchronised set and publish ``disparity_checked`` and ``confidence``
+        (those wanted)."""
+        want_disparity, want_confidence = self.pub_disparity.wanted, self.pub_confidence.wanted
+        if self.skip_unwanted(want_disparity, want_confidence):
+            return
         values: Mapping[str, Any] = self.params.values
         use_threads(values['threads'])
         left = _disparity(disparity_msg, 'disparity', self)
@@ -118,12 +125,14 @@ class CrossCheckNode(DepthNode):
         params = CrossCheckParams(**{name: values[name] for name in PARAMETER_NAMES})
         result = cross_check(left.disparity, right.disparity, ratio, **params.arguments())
         header = disparity_msg.header
-        self.pub_disparity.publish(build_disparity(
-            result.disparity, header, focal=left.focal, baseline=left.baseline,
-            min_disparity=left.min_disparity, max_disparity=left.max_disparity,
-            delta_d=left.delta_d, valid_window=left.valid_window))
-        self.pub_confidence.publish(array_to_image(
-            np.ascontiguousarray(result.confidence, np.float32), '32FC1', header))
+        if want_disparity:
+            self.pub_disparity.publish(build_disparity(
+                result.disparity, header, focal=left.focal, baseline=left.baseline,
+                min_disparity=left.min_disparity, max_disparity=left.max_disparity,
+                delta_d=left.delta_d, valid_window=left.valid_window))
+        if want_confidence:
+            self.pub_confidence.publish(array_to_image(
+                np.ascontiguousarray(result.confidence, np.float32), '32FC1', header))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -13,6 +13,8 @@ docs/design.md).
 The executable is ``depth_disparity_node``: ``disparity_node`` is stereo_image_proc's
 matcher here (the two upstream packages use the same name).
 
+Outputs are computed only while subscribed (lazy), or always offline.
+
 Frames without output are counted and logged: ``unsupported_encoding``, the decoding
 reasons, ``uncalibrated``, ``bad_calibration`` (also a right camera_info without a
 baseline), ``sync_*``.
@@ -75,7 +77,9 @@ class DepthDisparityNode(DepthImageNode):
             queue_size=values['queue_size'])
 
     def on_frame(self, depth_msg: Any, right_info: CameraInfo) -> None:
-        """Turn one depth image into ``left/disparity``."""
+        """Turn one depth image into ``left/disparity`` (while it is wanted)."""
+        if self.skip_unwanted(self.pub_disparity.wanted):
+            return
         read = self.read_depth(depth_msg, 'left/image_rect')
         if read is None:
             return

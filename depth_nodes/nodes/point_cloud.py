@@ -23,6 +23,9 @@ cameras included (:mod:`depth_nodes.core.reproject`); the DisparityImage's ``f``
 not used. ``min_range``/``max_range`` bound the depth Z, ``min_confidence`` the confidence;
 all but the synchronisation parameters change at runtime and apply from the next frame.
 
+Outputs are computed only while subscribed (lazy), or always offline; the colour image
+and ``extra_fields`` are read only for ``points2``.
+
 Frames without output are counted and logged with a reason: ``disparity_encoding`` (not
 32FC1), ``unsupported_encoding`` (colour image not mono8/mono16/rgb8/bgr8/rgba8/bgra8, or
 confidence not 32FC1), ``malformed_image``, ``size_mismatch`` (disparity vs image,
@@ -123,6 +126,13 @@ def _check_values(values: Mapping[str, Any]) -> str | None:
     return None
 
 
+def _depth_image(depth: Any, encoding: str, header: Any) -> Image:
+    """The ``depth`` message: 32FC1 metres, or 16UC1 millimetres."""
+    if encoding == '16UC1':
+        return array_to_image(depth_to_millimetres(depth), '16UC1', header)
+    return array_to_image(depth, '32FC1', header)
+
+
 class PointCloudNode(DepthNode):
     """Disparity (+ colour, + confidence) -> organised ``points2`` and ``depth``."""
 
@@ -156,7 +166,10 @@ class PointCloudNode(DepthNode):
     def on_frame(self, disparity_msg: DisparityImage, left_info: CameraInfo,
                  right_info: CameraInfo, *, image: Image | None = None,
                  confidence: Image | None = None) -> None:
-        """Turn one synchronised set into ``points2`` and ``depth``."""
+        """Turn one synchronised set into ``points2`` and ``depth`` (those wanted)."""
+        want_points, want_depth = self.pub_points.wanted, self.pub_depth.wanted
+        if self.skip_unwanted(want_points, want_depth):
+            return
         values = self.params.values
         use_threads(values['threads'])
         if disparity_msg.image.encoding != '32FC1':
@@ -177,9 +190,9 @@ class PointCloudNode(DepthNode):
                       f'describes {stereo.left.width}x{stereo.left.height}')
             return
         rgb = conf = None
-        if self.use_color:
-            if image is None:
-                raise ArgumentError('use_color is true: on_frame needs the colour image')
+        if self.use_color and image is None:
+            raise ArgumentError('use_color is true: on_frame needs the colour image')
+        if self.use_color and want_points:  # the colour is only the cloud's
             colour = self.frame_image(image, 'colour image', shape, COLOR_ENCODINGS,
                                       camera=True)
             if colour is None:
@@ -196,22 +209,20 @@ class PointCloudNode(DepthNode):
         result = reproject_disparity(
             disparity, stereo, min_range=limits.min_range, max_range=limits.max_range,
             confidence=conf, min_confidence=limits.min_confidence)
-        extra: dict[str, Any] = {}
-        for name in parse_extra_fields(values['extra_fields']):
-            if name == 'confidence':
-                extra[name] = conf
-            else:
-                extra[name] = depth_std(result.depth, stereo.focal, stereo.baseline,
-                                        limits.disparity_std)
         header = disparity_msg.header
-        self.pub_points.publish(build_pointcloud(
-            result.points, header, rgb=rgb, pad=not values['avoid_point_cloud_padding'],
-            extra_fields=extra))
-        if values['depth_encoding'] == '16UC1':
-            self.pub_depth.publish(array_to_image(depth_to_millimetres(result.depth), '16UC1',
-                                                  header))
-        else:
-            self.pub_depth.publish(array_to_image(result.depth, '32FC1', header))
+        if want_points:
+            extra: dict[str, Any] = {}
+            for name in parse_extra_fields(values['extra_fields']):
+                if name == 'confidence':
+                    extra[name] = conf
+                else:
+                    extra[name] = depth_std(result.depth, stereo.focal, stereo.baseline,
+                                            limits.disparity_std)
+            self.pub_points.publish(build_pointcloud(
+                result.points, header, rgb=rgb, pad=not values['avoid_point_cloud_padding'],
+                extra_fields=extra))
+        if want_depth:
+            self.pub_depth.publish(_depth_image(result.depth, values['depth_encoding'], header))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -11,6 +11,8 @@ depth are NaN points, or with ``invalid_depth`` > 0 points at that depth along t
 The intrinsics are the CameraInfo's rectified ``P`` (binning and ROI applied); a depth
 image of another size than the CameraInfo gets them scaled to its size.
 
+Outputs are computed only while subscribed (lazy), or always offline.
+
 Frames without output are counted and logged: ``unsupported_encoding``, the decoding
 reasons (``malformed_image``, ``decode_failed``...), ``uncalibrated``,
 ``bad_calibration``, ``sync_*``.
@@ -58,7 +60,9 @@ class PointCloudXyzNode(DepthImageNode):
              (CameraInfo, 'camera_info')], self.on_frame, queue_size=values['queue_size'])
 
     def on_frame(self, depth_msg: Any, info: CameraInfo) -> None:
-        """Turn one depth image into ``points``."""
+        """Turn one depth image into ``points`` (while it is wanted)."""
+        if self.skip_unwanted(self.pub_points.wanted):
+            return
         read = self.read_depth(depth_msg, 'image_rect')
         if read is None:
             return

@@ -14,6 +14,8 @@ ros-perception/image_pipeline#1147): the cloud has one point per depth pixel, wi
 CameraInfo's intrinsics scaled to the depth image and the colour of the colour pixel
 whose area holds the depth pixel's centre.
 
+Outputs are computed only while subscribed (lazy), or always offline.
+
 Frames without output are counted and logged: ``unsupported_encoding``, the decoding
 reasons, ``uncalibrated``, ``bad_calibration``, ``sync_*``.
 """
@@ -67,7 +69,9 @@ class PointCloudXyzrgbNode(DepthImageNode):
             approximate=not values['exact_sync'])
 
     def on_frame(self, depth_msg: Any, colour_msg: Any, info: CameraInfo) -> None:
-        """Turn one matched set into ``points``."""
+        """Turn one matched set into ``points`` (while it is wanted)."""
+        if self.skip_unwanted(self.pub_points.wanted):
+            return
         read = self.read_depth(depth_msg, 'depth_registered/image_rect')
         if read is None:
             return

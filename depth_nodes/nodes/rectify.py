@@ -11,6 +11,9 @@ debayer node's codes), both changeable at runtime and applied from the next fram
 Unlike image_proc, ``R`` is applied even when every distortion coefficient is zero, so a
 stereo pair whose only flaw is a relative rotation is still rectified.
 
+Outputs are computed only while subscribed (lazy), or always offline: a mono input with
+only ``image_rect_color`` subscribed is not rectified (it has no colour output).
+
 A frame without output is counted in ``drops`` and logged (throttled) with its reason:
 ``uncalibrated`` (K all zero), ``bad_calibration`` (non-finite values, wrong D length, ...),
 ``unsupported_encoding``, ``malformed_image``, ``size_mismatch`` (image vs CameraInfo), or
@@ -97,7 +100,11 @@ class RectifyNode(DepthNode):
                   f'{model.binning_y}, roi {model.roi[:4]})')
 
     def on_frame(self, image_msg: Any, info_msg: CameraInfo) -> None:
-        """Rectify one raw image with the CameraInfo of the same stamp."""
+        """Rectify one raw image with the CameraInfo of the same stamp (for the outputs
+        wanted)."""
+        want_rect, want_color = self.pub_rect.wanted, self.pub_rect_color.wanted
+        if self.skip_unwanted(want_rect, want_color):
+            return
         interpolation = self.params.values['interpolation']
         use_threads(self.params.values['threads'])
         if not np.any(np.asarray(info_msg.k)):
@@ -126,18 +133,22 @@ class RectifyNode(DepthNode):
         if raw.shape[:2] != (delivered.height, delivered.width):  # a compressed image's
             self._size_mismatch(raw.shape[1], raw.shape[0], model, delivered)
             return
+        if raw.ndim == 2 and self.skip_unwanted(want_rect):  # mono: no colour output
+            return
         try:
             rectified = self.rectifier.rectify(raw, model, interpolation, reuse_output=True)
         except CalibrationError as exc:  # validated above; kept for a cache rebuild failing
             self.drop('bad_calibration', f'camera_info unusable: {exc}')
             return
-        if rectified.ndim == 3:
+        if rectified.ndim == 2:
+            self.pub_rect.publish(array_to_image(rectified, encoding, image_msg.header))
+            return
+        if want_color:
             self.pub_rect_color.publish(array_to_image(rectified, encoding, image_msg.header))
+        if want_rect:
             mono = 'mono16' if rectified.dtype == np.uint16 else 'mono8'
             self.pub_rect.publish(
                 array_to_image(to_gray(rectified, encoding), mono, image_msg.header))
-        else:
-            self.pub_rect.publish(array_to_image(rectified, encoding, image_msg.header))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -15,6 +15,9 @@ prints), or, left empty, the transform between the two images' frame ids from ``
 and ``/tf_static`` (the latest of each edge: fixed extrinsics). tf2_msgs comes with every
 ROS 2 install but not with the PyPI wheels: without it ``depth_in_rgb`` must be given.
 
+Outputs are computed only while subscribed (lazy), or always offline: the depth is
+registered only while ``depth_registered/image_rect`` is wanted.
+
 Frames without output are counted and logged: ``no_transform`` (the two frames not
 connected by the transforms received), ``unsupported_encoding``, the decoding reasons,
 ``uncalibrated``, ``bad_calibration``, ``sync_*``.
@@ -119,7 +122,10 @@ class RegisterNode(DepthImageNode):
         return found
 
     def on_frame(self, depth_msg: Any, depth_info: CameraInfo, rgb_info: CameraInfo) -> None:
-        """Register one depth image into the colour camera."""
+        """Register one depth image into the colour camera (for the outputs wanted)."""
+        want_depth, want_info = self.pub_depth.wanted, self.pub_info.wanted
+        if self.skip_unwanted(want_depth, want_info):
+            return
         read = self.read_depth(depth_msg, 'depth/image_rect')
         if read is None:
             return
@@ -131,14 +137,16 @@ class RegisterNode(DepthImageNode):
         extrinsics = self._extrinsics(depth_msg.header.frame_id, rgb_info.header.frame_id)
         if extrinsics is None:
             return
-        registered = register_depth(depth, source, target, *extrinsics)
         header = copy.deepcopy(depth_msg.header)
         header.frame_id = rgb_info.header.frame_id
-        info = copy.deepcopy(rgb_info)
-        info.header = header
-        self.pub_depth.publish(array_to_image(from_metres(registered, encoding), encoding,
-                                              header))
-        self.pub_info.publish(info)
+        if want_depth:
+            registered = register_depth(depth, source, target, *extrinsics)
+            self.pub_depth.publish(array_to_image(from_metres(registered, encoding), encoding,
+                                                  header))
+        if want_info:
+            info = copy.deepcopy(rgb_info)
+            info.header = header
+            self.pub_info.publish(info)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -27,6 +27,10 @@ removal. Its left border strip, where the match may lie outside the right image,
 the disparity its neighbours carry in (``border_cost``) up to ``border_extrapolation`` x
 disparity_range px past the border; beyond that the pixels are invalid.
 
+Outputs are computed only while subscribed (lazy), or always offline: the census matcher
+yields the three together (an output nobody wants is not built); with OpenCV the mirrored
+pair is matched only while ``disparity_right`` is wanted.
+
 Frames without output are counted and logged with a reason: ``size_mismatch``,
 ``encoding_mismatch``, ``unsupported_encoding``, ``malformed_image``, ``decode_failed``,
 ``unsupported_format`` (a compressed image that cannot be read), ``uncalibrated``,
@@ -294,8 +298,15 @@ class SgmStereoNode(DepthNode):
 
     def on_frame(self, left_msg: Any, left_info: CameraInfo, right_msg: Any,
                  right_info: CameraInfo) -> None:
-        """Match one synchronised stereo pair."""
+        """Match one synchronised stereo pair (for the outputs wanted)."""
         values = self.params.values
+        census = values['stereo_algorithm'] == CENSUS_SGM
+        wanted = (self.pub_disparity.wanted, self.pub_disparity_right.wanted,
+                  self.pub_cost_ratio.wanted)
+        # OpenCV with right_view false never publishes disparity_right and cost_ratio
+        right_outputs = census or values['right_view']
+        if self.skip_unwanted(wanted[0], right_outputs and any(wanted[1:])):
+            return
         pair = self._grey_pair(left_msg, right_msg)
         if pair is None:
             return
@@ -319,26 +330,9 @@ class SgmStereoNode(DepthNode):
                   'max_disparity': lo + n - 1,
                   'valid_window': (max(0, lo), 0, min(w, w + lo + n - 1), h)}
         right_common = dict(common, valid_window=(max(0, -lo - n + 1), 0, min(w, w - lo), h))
-        if values['stereo_algorithm'] != CENSUS_SGM:  # frame by frame
-            start = time.perf_counter()
-            use_threads(values['threads'])
-            try:
-                disparity = opencv_disparity(left, right, values)
-                mirrored = (opencv_disparity(right[:, ::-1], left[:, ::-1], values)[:, ::-1]
-                            if values['right_view'] else None)
-            except (cv2.error, ValueError) as exc:  # not expected, never silent
-                self._frame_failed(exc)
-                return
-            self.pub_disparity.publish(build_disparity(disparity, header, delta_d=1 / 16,
-                                                       **common))
-            if mirrored is not None:  # what the cross-check needs; OpenCV has no cost
-                self.pub_disparity_right.publish(build_disparity(
-                    np.ascontiguousarray(mirrored), right_msg.header, delta_d=1 / 16,
-                    **right_common))
-                self.pub_cost_ratio.publish(array_to_image(
-                    np.full((h, w), np.nan, np.float32), '32FC1', header))
-            if not self.callback_is_frame_time:
-                self.record_frame_time(time.perf_counter() - start)
+        if not census:  # frame by frame
+            self._opencv_frame(left, right, values, wanted, left_msg.header, right_msg.header,
+                               common, right_common)
             return
         params = sgm_params(values)
         threads = values['threads']
@@ -349,26 +343,32 @@ class SgmStereoNode(DepthNode):
             threads *= values['parallel_frames']
         delta_d = SUBPIXEL_STEP if values['subpixel'] != 'none' else 1.0
 
+        want_disparity, want_right, want_cost = wanted
+        outputs = (self.pub_disparity, self.pub_disparity_right, self.pub_cost_ratio)
+
         def compute() -> tuple[tuple[Any, Any, Any], float]:
             start = time.perf_counter()
             use_threads(threads)  # numba's setting is per thread
             matcher = self._take_matcher(params)
             try:
                 result = matcher.match(left, right)
-                msgs = (build_disparity(result.disparity, header, delta_d=delta_d, **common),
+                msgs = (build_disparity(result.disparity, header, delta_d=delta_d, **common)
+                        if want_disparity else None,
                         build_disparity(result.disparity_right, right_msg.header,
-                                        delta_d=delta_d, **right_common),
-                        array_to_image(result.cost_ratio, '32FC1', header))
+                                        delta_d=delta_d, **right_common)
+                        if want_right else None,
+                        array_to_image(result.cost_ratio, '32FC1', header)
+                        if want_cost else None)
             finally:
                 self._matchers.put(matcher)
             return msgs, time.perf_counter() - start
 
         def publish(done: tuple[tuple[Any, Any, Any], float]) -> None:
-            (disparity, disparity_right, cost_ratio), seconds = done
+            msgs, seconds = done
             start = time.perf_counter()
-            self.pub_disparity.publish(disparity)
-            self.pub_disparity_right.publish(disparity_right)
-            self.pub_cost_ratio.publish(cost_ratio)
+            for output, msg in zip(outputs, msgs, strict=True):
+                if msg is not None:
+                    output.publish(msg)
             if not self.callback_is_frame_time:
                 self.record_frame_time(seconds + time.perf_counter() - start)
 
@@ -376,6 +376,34 @@ class SgmStereoNode(DepthNode):
             publish(compute())
         else:
             self._workers.submit(compute, publish)
+
+    def _opencv_frame(self, left: Any, right: Any, values: Mapping[str, Any],
+                      wanted: tuple[bool, bool, bool], header: Any, right_header: Any,
+                      common: dict[str, Any], right_common: dict[str, Any]) -> None:
+        """Match a grey pair with OpenCV's algorithm of ``values`` and publish the outputs
+        ``wanted`` (disparity, disparity_right, cost_ratio), frame by frame."""
+        want_disparity, want_right, want_cost = wanted
+        right_view = values['right_view']
+        start = time.perf_counter()
+        use_threads(values['threads'])
+        try:
+            disparity = opencv_disparity(left, right, values) if want_disparity else None
+            mirrored = (opencv_disparity(right[:, ::-1], left[:, ::-1], values)[:, ::-1]
+                        if right_view and want_right else None)
+        except (cv2.error, ValueError) as exc:  # not expected, never silent
+            self._frame_failed(exc)
+            return
+        if disparity is not None:
+            self.pub_disparity.publish(build_disparity(disparity, header, delta_d=1 / 16,
+                                                       **common))
+        if mirrored is not None:  # what the cross-check needs
+            self.pub_disparity_right.publish(build_disparity(
+                np.ascontiguousarray(mirrored), right_header, delta_d=1 / 16, **right_common))
+        if right_view and want_cost:  # OpenCV has no matching cost
+            self.pub_cost_ratio.publish(array_to_image(
+                np.full(left.shape, np.nan, np.float32), '32FC1', header))
+        if not self.callback_is_frame_time:
+            self.record_frame_time(time.perf_counter() - start)
 
     def _take_matcher(self, params: SgmParams) -> SgmMatcher:
         """An idle matcher set to ``params`` (a new one when every matcher is busy)."""

@@ -18,6 +18,10 @@ a sequence in progress): ``mode`` (gray, phase, opencv, speckle), ``axes``,
 ``avoid_point_cloud_padding``,
 ``max_sequence_frames``, ``sequence_timeout``, ``queue_size``.
 
+Outputs are computed only while subscribed (lazy), or always offline: a complete sequence
+(or a speckle image) nobody wants is not decoded; the frames of a sequence are gathered
+whatever is subscribed, so a subscriber that comes mid-sequence gets that sequence.
+
 Memory is bounded by the parameters, never by what a sender claims: frames waiting for
 their tag and tags waiting for their frame by ``queue_size``, a sequence by
 ``max_sequence_frames`` (a tag announcing more is refused, ``pattern_count_too_large``,
@@ -252,6 +256,9 @@ class StructuredLightNode(DepthNode):
 
     def _decode(self, frames: list[tuple[Any, Header, CameraInfo]], pattern_set: PatternSet,
                 values: Mapping[str, Any]) -> None:
+        wanted = self._wanted()
+        if self.skip_unwanted(*wanted):
+            return
         first, header, info = frames[0]
         if any(f[0].shape != first.shape for f in frames):
             self.drop('size_mismatch', 'images of one sequence differ in size')
@@ -273,11 +280,14 @@ class StructuredLightNode(DepthNode):
         except (ConfigError, CalibrationError) as exc:
             self.drop('bad_calibration', str(exc))
             return
-        self._publish(result.depth, result.confidence, header, values)
+        self._publish(result.depth, result.confidence, header, values, wanted)
 
     # ---------------------------------------------------------------- speckle
 
     def _speckle(self, image: Image, info: CameraInfo) -> None:
+        wanted = self._wanted()
+        if self.skip_unwanted(*wanted):
+            return
         values = self.params.values
         grey = self._grey(image)
         if grey is None:
@@ -305,17 +315,26 @@ class StructuredLightNode(DepthNode):
         except ConfigError as exc:
             self.drop('bad_calibration', str(exc))
             return
-        self._publish(depth, conf, image.header, values)
+        self._publish(depth, conf, image.header, values, wanted)
 
     # ---------------------------------------------------------------- output
 
+    def _wanted(self) -> tuple[bool, bool, bool]:
+        """Whether depth, points2 and confidence are wanted (once per decoded frame)."""
+        return self.pub_depth.wanted, self.pub_points.wanted, self.pub_confidence.wanted
+
     def _publish(self, depth: NDArray[np.float32], confidence: NDArray[np.float32],
-                 header: Header, values: Mapping[str, Any]) -> None:
-        self.pub_depth.publish(array_to_image(depth, '32FC1', header))
-        points = points_on_rays(self._rays, depth)
-        self.pub_points.publish(build_pointcloud(
-            points, header, pad=not values['avoid_point_cloud_padding']))
-        self.pub_confidence.publish(array_to_image(confidence, '32FC1', header))
+                 header: Header, values: Mapping[str, Any],
+                 wanted: tuple[bool, bool, bool]) -> None:
+        want_depth, want_points, want_confidence = wanted
+        if want_depth:
+            self.pub_depth.publish(array_to_image(depth, '32FC1', header))
+        if want_points:
+            points = points_on_rays(self._rays, depth)
+            self.pub_points.publish(build_pointcloud(
+                points, header, pad=not values['avoid_point_cloud_padding']))
+        if want_confidence:
+            self.pub_confidence.publish(array_to_image(confidence, '32FC1', header))
 
 
 def _geometry(info: CameraInfo, projector_info: CameraInfo

@@ -29,6 +29,10 @@ Parameters (all but ``queue_size`` change at runtime, from the next frame):
 ``depth_encoding``, ``threads`` (of the numba kernels and OpenCV; 2 on two cores: 32
 frames/s at 640x480, 23 on one, ``depth-nodes bench tof``), ``queue_size``.
 
+Outputs are computed only while subscribed (lazy), or always offline: with only
+``depth/camera_info`` wanted the frame is not decoded, and the cloud is built only while
+``points`` is wanted.
+
 Frames without output are counted and logged: ``unsupported_encoding``,
 ``malformed_image``, ``size_mismatch`` (the image is not ``F N`` planes of the
 CameraInfo's size), ``uncalibrated``, ``bad_calibration``, ``sync_*``.
@@ -125,7 +129,13 @@ class ToFNode(DepthNode):
                                self.on_frame, queue_size=self.params.values['queue_size'])
 
     def on_frame(self, image: Image, info: CameraInfo) -> None:
-        """Decode one raw frame and publish its outputs."""
+        """Decode one raw frame and publish its outputs (those wanted)."""
+        want_depth, want_info, want_amplitude, want_confidence, want_points = (
+            out.wanted for out in (self.pub_depth, self.pub_info, self.pub_amplitude,
+                                   self.pub_confidence, self.pub_points))
+        decoded = want_depth or want_amplitude or want_confidence or want_points
+        if self.skip_unwanted(decoded, want_info):
+            return
         values = self.params.values
         use_threads(values['threads'])
         freqs = check_frequencies(values['modulation_frequencies'])
@@ -152,18 +162,26 @@ class ToFNode(DepthNode):
                       f'frequencies x {settings.phase_steps} phase steps) of the camera_info\'s '
                       f'{camera.width}x{camera.height}, stacked vertically')
             return
+        header = copy.deepcopy(image.header)
+        if not decoded:
+            self.pub_info.publish(rectified_info(camera, header))
+            return
         samples = pixels.reshape(planes, camera.height, camera.width)
         result = self.decoder.decode(samples, camera, freqs, settings)
-        header = copy.deepcopy(image.header)
-        encoding = values['depth_encoding']
-        self.pub_depth.publish(array_to_image(from_metres(result.depth, encoding), encoding,
-                                              header))
-        self.pub_info.publish(rectified_info(camera, header))
-        self.pub_amplitude.publish(array_to_image(result.amplitude, '32FC1', header))
-        self.pub_confidence.publish(array_to_image(result.confidence, '32FC1', header))
-        points = depth_to_points(result.depth, intrinsics(camera))
-        self.pub_points.publish(build_pointcloud(points, header,
-                                                 extra_fields={'intensity': result.amplitude}))
+        if want_depth:
+            encoding = values['depth_encoding']
+            self.pub_depth.publish(array_to_image(from_metres(result.depth, encoding),
+                                                  encoding, header))
+        if want_info:
+            self.pub_info.publish(rectified_info(camera, header))
+        if want_amplitude:
+            self.pub_amplitude.publish(array_to_image(result.amplitude, '32FC1', header))
+        if want_confidence:
+            self.pub_confidence.publish(array_to_image(result.confidence, '32FC1', header))
+        if want_points:
+            points = depth_to_points(result.depth, intrinsics(camera))
+            self.pub_points.publish(build_pointcloud(
+                points, header, extra_fields={'intensity': result.amplitude}))
 
 
 def main(args: list[str] | None = None) -> None:

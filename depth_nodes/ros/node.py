@@ -75,7 +75,7 @@ class DepthNode(Node):
         self.sink: Sink | None = None
         self.accounting = Accounting(lambda: self.get_logger(), lambda: self.stopping)
         self.input_set = InputSet(self, self.accounting, self.on_time_jump)
-        self.frames = FrameReader(self)
+        self.frame_reader = FrameReader(self)
         self.inputs: list[InputSpec] = self.input_set.specs
         self.outputs: dict[str, Output] = {}
         #: Frames dropped since the start, by reason.
@@ -236,24 +236,24 @@ class DepthNode(Node):
         """``(pixels, encoding)`` of an input image that must fit the frame, or None after
         counting the drop: see :meth:`FrameReader.frame_image
         <depth_nodes.ros.frames.FrameReader.frame_image>`."""
-        return self.frames.frame_image(msg, what, shape, encodings, camera=camera)
+        return self.frame_reader.frame_image(msg, what, shape, encodings, camera=camera)
 
     def decoding_failed(self, exc: MessageError, what: str) -> None:
         """Count an image that could not be read: ``unsupported_format`` (a compressed
         format or transport not known), ``unsupported_encoding``, ``decode_failed`` (damaged
         compressed data) or ``malformed_image`` (fields that disagree, odd Bayer sizes)."""
-        self.frames.decoding_failed(exc, what)
+        self.frame_reader.decoding_failed(exc, what)
 
     def gray_image(self, msg: Any, what: str) -> Any:
         """A camera image (raw or compressed, any camera encoding) as one grey channel, or
         None after counting the drop (see :meth:`decoding_failed`)."""
-        return self.frames.gray_image(msg, what)
+        return self.frame_reader.gray_image(msg, what)
 
     def stereo_model(self, left_info: Any, right_info: Any) -> StereoModel | None:
         """The stereo geometry of a CameraInfo pair (converted again only when one changes),
         or None after counting the drop: ``uncalibrated`` (a K all zero) or
         ``bad_calibration`` (anything else unusable)."""
-        return self.frames.stereo_model(left_info, right_info)
+        return self.frame_reader.stereo_model(left_info, right_info)
 
     # ------------------------------------------------------------------ diagnostics
 
