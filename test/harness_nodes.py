@@ -4,6 +4,7 @@ outputs) and the bag harness, and :func:`want_only`, which picks the outputs wan
 from __future__ import annotations
 
 import time
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -136,6 +137,21 @@ class SplitNode(DepthNode):
         if want_bottom:
             self.computed.append('bottom')
             self.bottom.publish(array_to_image(pixels[half:].copy(), 'mono8', msg.header))
+
+
+def count_calls(monkeypatch: Any, owner: Any, *names: str) -> Counter[str]:
+    """Count the calls of the functions ``names`` of ``owner`` (a module or class) from
+    now on; they still do their work."""
+    calls: Counter[str] = Counter()
+    for name in names:
+        real = getattr(owner, name)
+
+        def spy(*args: Any, _real: Any = real, _name: str = name, **kwargs: Any) -> Any:
+            calls[_name] += 1
+            return _real(*args, **kwargs)
+
+        monkeypatch.setattr(owner, name, spy)
+    return calls
 
 
 def want_only(monkeypatch: Any, *topics: str) -> None:

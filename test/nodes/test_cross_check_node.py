@@ -28,12 +28,14 @@ from depth_nodes.core.cross_check import (
 )
 from depth_nodes.core.metrics import sparsification_auc
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.nodes import cross_check as cross_check_node
 from depth_nodes.nodes.cross_check import CrossCheckNode
 from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.evaluation.evaluate import EvalReport
+from harness_nodes import count_calls, want_only
 
 pytestmark = pytest.mark.ros
 
@@ -282,3 +284,26 @@ def test_a_set_still_incomplete_when_the_stream_ends_is_counted(node: Any) -> No
     assert node.drops == {'stream_ended': 1}
     assert node.outbox == {}
 
+
+
+@pytest.mark.parametrize(('wanted', 'work'), [
+    (('/disparity_checked', '/confidence'),
+     {'cross_check': 1, 'build_disparity': 1, 'array_to_image': 1}),
+    (('/disparity_checked',), {'cross_check': 1, 'build_disparity': 1}),
+    (('/confidence',), {'cross_check': 1, 'array_to_image': 1}),
+    ((), {}),
+])
+def test_only_the_outputs_wanted_are_built(node: Any, monkeypatch: pytest.MonkeyPatch,
+                                           wanted: tuple[str, ...],
+                                           work: dict[str, int]) -> None:
+    node.on_frame(*_inputs())
+    everything = dict(node.outbox)
+    node.outbox.clear()
+    calls = count_calls(monkeypatch, cross_check_node, 'cross_check', 'build_disparity',
+                        'array_to_image')
+    want_only(monkeypatch, *wanted)
+    node.on_frame(*_inputs())
+    assert node.outbox == {topic: everything[topic] for topic in wanted}
+    assert calls == work
+    assert node.drops == {}
+    assert node.accounting.skipped == (0 if wanted else 1)

@@ -10,6 +10,7 @@ rounded to millimetres); registration as in test/core/test_depth_image.py.
 
 from __future__ import annotations
 
+import sys
 from types import SimpleNamespace
 from typing import Any
 
@@ -37,6 +38,7 @@ from depth_nodes.ros.pointcloud import read_pointcloud
 from depth_nodes.ros.transport import compress_depth
 from depth_nodes.sim.depth_camera import CameraPose, render_view
 from depth_nodes.sim.layout import build_scene, rotation
+from harness_nodes import count_calls, want_only
 
 pytestmark = pytest.mark.ros
 
@@ -410,3 +412,72 @@ def test_depth_disparity_refuses_an_empty_range(context: Context) -> None:
     with pytest.raises(ConfigError, match='max_range \\(2\\) must be greater than min_range'):
         DepthDisparityNode(context=context, parameter_overrides=[
             Parameter('min_range', value=3.0), Parameter('max_range', value=2.0)])
+
+
+# ------------------------------------------------------------ lazy outputs
+
+
+def _frame_of(node_class: type) -> tuple[Any, ...]:
+    """A good input set of each depth_image_proc node."""
+    if node_class is PointCloudXyzrgbNode:
+        return (_depth_msg(RGB_AT_HALF.depth, frame='rgb_optical'),
+                array_to_image(RGB.colour, 'rgb8', header(STAMP, 'rgb_optical')),
+                _info(RGB_CAM, 'rgb_optical'))
+    if node_class is DepthDisparityNode:
+        return _depth_msg(DEPTH.depth), _info(DEPTH_CAM, 'r', tx=-14.0)
+    if node_class is ConvertMetricNode:
+        return (_depth_msg(DEPTH.depth, '16UC1'),)
+    return _depth_msg(DEPTH.depth), _info(DEPTH_CAM, 'depth_optical')
+
+
+@pytest.mark.parametrize(('node_class', 'work'), [
+    (PointCloudXyzNode, 'depth_to_points'),
+    (PointCloudXyzrgbNode, 'depth_to_points'),
+    (DepthDisparityNode, 'depth_to_disparity'),
+    (ConvertMetricNode, 'read_depth'),
+])
+def test_a_frame_nobody_wants_is_skipped(context: Context, monkeypatch: pytest.MonkeyPatch,
+                                         node_class: type, work: str) -> None:
+    node = _make(node_class, context)
+    module = sys.modules[node_class.__module__]
+    calls = count_calls(monkeypatch, node if work == 'read_depth' else module, work)
+    try:
+        (output,) = node.outputs
+        want_only(monkeypatch)
+        node.on_frame(*_frame_of(node_class))
+        assert (node.outbox, calls, node.drops) == ({}, {}, {})
+        assert node.accounting.skipped == 1
+        want_only(monkeypatch, output)
+        node.on_frame(*_frame_of(node_class))
+        assert set(node.outbox) == {output}
+        assert calls == {work: 1}
+        assert node.drops == {}
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize(('wanted', 'registered'), [
+    (('/depth_registered/image_rect', '/depth_registered/camera_info'), 1),
+    (('/depth_registered/image_rect',), 1),
+    (('/depth_registered/camera_info',), 0),  # the colour camera's info needs no depth
+    ((), 0),
+])
+def test_register_registers_only_while_its_depth_is_wanted(
+        context: Context, monkeypatch: pytest.MonkeyPatch, wanted: tuple[str, ...],
+        registered: int) -> None:
+    node = _make(RegisterNode, context, depth_in_rgb=_depth_in_rgb())
+    frame = (_depth_msg(DEPTH.depth), _info(DEPTH_CAM, 'depth_optical'),
+             _info(RGB_CAM, 'rgb_optical'))
+    try:
+        node.on_frame(*frame)
+        everything = dict(node.outbox)
+        node.outbox.clear()
+        calls = count_calls(monkeypatch, register_depth, 'register_depth')
+        want_only(monkeypatch, *wanted)
+        node.on_frame(*frame)
+        assert node.outbox == {topic: everything[topic] for topic in wanted}
+        assert calls['register_depth'] == registered
+        assert node.drops == {}
+        assert node.accounting.skipped == (0 if wanted else 1)
+    finally:
+        node.destroy_node()

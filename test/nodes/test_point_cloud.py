@@ -20,14 +20,17 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
 from ros_helpers import capture, header, tuner
 from rosbags.typesys import Stores, get_typestore
+from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from depth_nodes.errors import ConfigError
+from depth_nodes.nodes import point_cloud
 from depth_nodes.nodes.point_cloud import PointCloudNode
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
+from harness_nodes import Listener, count_calls, want_only
 
 pytestmark = pytest.mark.ros
 
@@ -384,3 +387,58 @@ def test_compressed_colour_and_its_hostile_forms(context: Context) -> None:
         assert n.drops == {'decode_failed': 1, 'unsupported_format': 1}
     finally:
         n.destroy_node()
+
+
+@pytest.mark.parametrize(('wanted', 'work'), [
+    (('/points2', '/depth'), {'reproject_disparity': 1, 'to_rgb8': 1, 'build_pointcloud': 1}),
+    (('/points2',), {'reproject_disparity': 1, 'to_rgb8': 1, 'build_pointcloud': 1}),
+    (('/depth',), {'reproject_disparity': 1}),  # no colour read, no cloud built
+    ((), {}),  # skipped before anything is read
+])
+def test_only_the_outputs_wanted_are_computed(node: Any, monkeypatch: pytest.MonkeyPatch,
+                                              wanted: tuple[str, ...],
+                                              work: dict[str, int]) -> None:
+    node.on_frame(**_inputs())
+    everything = dict(node.outbox)
+    node.outbox.clear()
+    calls = count_calls(monkeypatch, point_cloud, 'reproject_disparity', 'to_rgb8',
+                        'build_pointcloud')
+    want_only(monkeypatch, *wanted)
+    node.on_frame(**_inputs())
+    assert node.outbox == {topic: everything[topic] for topic in wanted}
+    assert calls == work
+    assert node.drops == {}
+    assert node.accounting.skipped == (0 if wanted else 1)
+
+
+def test_the_depth_alone_needs_no_colour(node: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    want_only(monkeypatch, '/depth')
+    node.on_frame(**_inputs({('image', 'encoding'): '32FC1'}))  # unusable as colour
+    assert set(node.outbox) == {'/depth'}
+    assert node.drops == {}
+    want_only(monkeypatch, '/depth', '/points2')
+    node.on_frame(**_inputs({('image', 'encoding'): '32FC1'}))
+    assert node.drops == {'unsupported_encoding': 1}
+
+
+def test_live_a_subscriber_on_depth_gets_depth_and_no_cloud_is_built(
+        context: Context) -> None:
+    node = PointCloudNode(context=context)
+    listener = Listener(context)
+    try:
+        depth = listener.subscribe(node.pub_depth, Image)
+        node.on_frame(**_inputs())
+        listener.wait(depth, 1)
+        assert (node.pub_depth.count, node.pub_points.count) == (1, 0)
+        points = listener.subscribe(node.pub_points, PointCloud2)
+        node.on_frame(**_inputs())
+        listener.wait(points, 1)
+        listener.wait(depth, 2)
+        z = _read(points[0], XYZ_RGB_PADDED, 32)['z']
+        for msg in depth:
+            np.testing.assert_array_equal(np.frombuffer(bytes(msg.data), '<f4').reshape(H, W),
+                                          z)
+        assert node.drops == {}
+    finally:
+        listener.close()
+        node.destroy_node()

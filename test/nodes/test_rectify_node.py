@@ -20,10 +20,12 @@ from ros_helpers import capture, tuner
 from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.core.rectify import Rectifier
+from depth_nodes.nodes import rectify
 from depth_nodes.nodes.rectify import RectifyNode
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
+from harness_nodes import count_calls, want_only
 
 pytestmark = pytest.mark.ros
 
@@ -291,3 +293,28 @@ def test_frame_id_override_leaves_the_input_alone(context: Context) -> None:
         assert image.header.frame_id == 'driver_frame'
     finally:
         node.destroy_node()
+
+
+@pytest.mark.parametrize(('encoding', 'wanted', 'work'), [
+    ('rgb8', ('/image_rect', '/image_rect_color'), {'rectify': 1, 'to_gray': 1}),
+    ('rgb8', ('/image_rect_color',), {'rectify': 1}),
+    ('rgb8', ('/image_rect',), {'rectify': 1, 'to_gray': 1}),
+    ('rgb8', (), {}),
+    ('mono8', ('/image_rect',), {'rectify': 1}),
+    ('mono8', ('/image_rect_color',), {}),  # a mono image has no colour output
+])
+def test_only_the_outputs_wanted_are_computed(node: Any, monkeypatch: pytest.MonkeyPatch,
+                                              encoding: str, wanted: tuple[str, ...],
+                                              work: dict[str, int]) -> None:
+    image = FRAME.left_raw if encoding == 'rgb8' else FRAME.left_raw[:, :, 0]
+    node.on_frame(*_pair(image, encoding))
+    everything = list(node.outbox)
+    node.outbox.clear()
+    rectified = count_calls(monkeypatch, node.rectifier, 'rectify')
+    grey = count_calls(monkeypatch, rectify, 'to_gray')
+    want_only(monkeypatch, *wanted)
+    node.on_frame(*_pair(image, encoding))
+    assert node.outbox == [(topic, msg) for topic, msg in everything if topic in wanted]
+    assert rectified + grey == work
+    assert node.drops == {}
+    assert node.accounting.skipped == (0 if work else 1)

@@ -15,11 +15,13 @@ from ros_helpers import capture, tuner
 
 from depth_nodes.core.opencv_stereo import opencv_sgbm
 from depth_nodes.core.sgm import SgmMatcher
+from depth_nodes.nodes import sgm_stereo
 from depth_nodes.nodes.sgm_stereo import SgmStereoNode, opencv_settings, sgm_params
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
+from harness_nodes import count_calls, want_only
 
 pytestmark = pytest.mark.ros
 
@@ -409,3 +411,82 @@ def test_offline_the_cores_of_parallel_frames_go_to_the_one_frame(context: Conte
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
                                   expected.disparity)
+
+
+@pytest.mark.parametrize(('wanted', 'work'), [
+    (('/disparity', '/disparity_right', '/cost_ratio'),
+     {'match': 1, 'build_disparity': 2, 'array_to_image': 1}),
+    (('/disparity',), {'match': 1, 'build_disparity': 1}),
+    (('/cost_ratio',), {'match': 1, 'array_to_image': 1}),  # the matcher gives all three
+    ((), {}),
+])
+def test_census_builds_only_the_outputs_wanted(node: Any, monkeypatch: pytest.MonkeyPatch,
+                                               wanted: tuple[str, ...],
+                                               work: dict[str, int]) -> None:
+    node.on_frame(*_inputs())
+    everything = dict(node.outbox)
+    node.outbox.clear()
+    matched = count_calls(monkeypatch, SgmMatcher, 'match')
+    built = count_calls(monkeypatch, sgm_stereo, 'build_disparity', 'array_to_image')
+    want_only(monkeypatch, *wanted)
+    node.on_frame(*_inputs())
+    assert node.outbox == {topic: everything[topic] for topic in wanted}
+    assert matched + built == work
+    assert node.drops == {}
+    assert node.accounting.skipped == (0 if wanted else 1)
+
+
+@pytest.mark.parametrize(('right_view', 'wanted', 'matches'), [
+    (True, ('/disparity', '/disparity_right', '/cost_ratio'), 2),
+    (True, ('/disparity',), 1),
+    (True, ('/disparity_right',), 1),  # the mirrored pair only
+    (True, ('/cost_ratio',), 0),  # all NaN: OpenCV has no matching cost
+    (False, ('/disparity_right', '/cost_ratio'), 0),  # never published: skipped
+])
+def test_opencv_matches_only_the_views_wanted(context: Context,
+                                              monkeypatch: pytest.MonkeyPatch,
+                                              right_view: bool, wanted: tuple[str, ...],
+                                              matches: int) -> None:
+    node = capture(SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('stereo_algorithm', value=1), Parameter('disparity_range', value=48),
+        Parameter('right_view', value=right_view)]))
+    try:
+        node.on_frame(*_inputs())
+        everything = dict(node.outbox)
+        node.outbox.clear()
+        calls = count_calls(monkeypatch, sgm_stereo, 'opencv_disparity')
+        want_only(monkeypatch, *wanted)
+        node.on_frame(*_inputs())
+        published = {topic: everything[topic] for topic in wanted if topic in everything}
+        assert node.outbox == published
+        assert calls['opencv_disparity'] == matches
+        assert node.drops == {}
+        assert node.accounting.skipped == (0 if published else 1)
+    finally:
+        node.destroy_node()
+
+
+def test_parallel_frames_decide_what_is_wanted_before_the_work(
+        context: Context, monkeypatch: pytest.MonkeyPatch) -> None:
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('parallel_frames', value=2),
+        Parameter('threads', value=1)])
+    log: list[tuple[str, Any]] = []
+    for out in node.outputs.values():
+        out._publisher = _Recorder(out.topic, log)  # live path (no sink), no DDS
+    built = count_calls(monkeypatch, sgm_stereo, 'build_disparity', 'array_to_image')
+    want_only(monkeypatch, '/disparity_right')
+    try:
+        for i in range(4):
+            msgs = _inputs()
+            for msg in msgs:
+                msg.header.stamp.sec = 100 + i
+            node.on_frame(*msgs)
+        want_only(monkeypatch)  # nobody now: the frames in flight still publish
+        node._workers.drain()
+    finally:
+        node.destroy_node()
+    assert [(topic, msg.header.stamp.sec) for topic, msg in log] == [
+        ('/disparity_right', 100 + i) for i in range(4)]
+    assert built == {'build_disparity': 4}
+    assert node.drops == {}

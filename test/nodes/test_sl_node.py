@@ -23,11 +23,13 @@ from depth_nodes.core.structured_light import (
 )
 from depth_nodes.core.structured_light.reconstruct import reconstruct
 from depth_nodes.errors import ConfigError
+from depth_nodes.nodes import structured_light
 from depth_nodes.nodes.structured_light import StructuredLightNode
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.ros.pointcloud import read_pointcloud
 from depth_nodes.sim.projector import ProjectorCameraSim, ProjectorSimConfig, reference_plane_scene
+from harness_nodes import count_calls, want_only
 
 pytestmark = pytest.mark.ros
 
@@ -284,5 +286,61 @@ def test_bad_speckle_reference_is_a_counted_drop(context: Context, tmp_path: Pat
         assert len(details) == 1
         assert details[0].startswith('speckle_reference: ')
         assert message in details[0]
+    finally:
+        node.destroy_node()
+
+
+def _data(outbox: list[tuple[str, Any]]) -> list[tuple[str, bytes]]:
+    return [(topic, bytes(msg.data)) for topic, msg in outbox]
+
+
+@pytest.mark.parametrize(('wanted', 'work'), [
+    (('/depth', '/points2', '/confidence'), {'reconstruct': 1, 'points_on_rays': 1}),
+    (('/depth',), {'reconstruct': 1}),
+    (('/points2',), {'reconstruct': 1, 'points_on_rays': 1}),
+    ((), {}),
+])
+def test_a_sequence_is_decoded_only_for_the_outputs_wanted(
+        node: Any, monkeypatch: pytest.MonkeyPatch, wanted: tuple[str, ...],
+        work: dict[str, int]) -> None:
+    _sequence(node, 0)
+    everything = _data(node.outbox)
+    node.outbox.clear()
+    calls = count_calls(monkeypatch, structured_light, 'reconstruct', 'points_on_rays')
+    want_only(monkeypatch, *wanted)
+    _sequence(node, 1)
+    assert _data(node.outbox) == [(topic, data) for topic, data in everything
+                                  if topic in wanted]
+    assert calls == work
+    assert node.drops == {}
+    assert node.accounting.skipped == (0 if wanted else 1)
+
+
+def test_a_sequence_gathered_while_nobody_listened_is_decoded_for_a_later_subscriber(
+        node: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    want_only(monkeypatch)
+    _sequence(node, 0, order=list(range(N - 1)))
+    want_only(monkeypatch, '/depth')
+    _sequence(node, 0, start=10**6 * (N - 1), order=[N - 1])
+    assert [topic for topic, _ in node.outbox] == ['/depth']
+    assert node.drops == {}
+    assert node.accounting.skipped == 0
+
+
+def test_a_speckle_image_nobody_wants_is_not_matched(
+        context: Context, speckle_files: tuple[np.ndarray, Path],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    image, path = speckle_files
+    node = _make(context, mode='speckle', speckle_reference=str(path), speckle_window=9)
+    try:
+        calls = count_calls(monkeypatch, structured_light, 'speckle_depth')
+        want_only(monkeypatch)
+        _speckle(node, image)
+        assert (node.outbox, calls, node.drops) == ([], {}, {})
+        assert node.accounting.skipped == 1
+        want_only(monkeypatch, '/confidence')
+        _speckle(node, image, stamp=2 * 10**9)
+        assert [topic for topic, _ in node.outbox] == ['/confidence']
+        assert calls == {'speckle_depth': 1}
     finally:
         node.destroy_node()

@@ -19,11 +19,13 @@ from rclpy.parameter import Parameter
 from ros_helpers import capture, header, tuner
 
 from depth_nodes.errors import ConfigError
+from depth_nodes.nodes import tof
 from depth_nodes.nodes.tof import ToFNode
 from depth_nodes.ros.camera_info import camera_info_to_model, model_to_camera_info
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.ros.pointcloud import read_pointcloud
 from depth_nodes.sim.tof import ToFSimConfig, simulate_tof
+from harness_nodes import count_calls, want_only
 
 pytestmark = pytest.mark.ros
 
@@ -184,3 +186,30 @@ def test_bad_start_up_values_are_one_line_errors(context: Context, name: str, va
                                                  message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         ToFNode(context=context, parameter_overrides=[Parameter(name, value=value)])
+
+
+ALL = ('/depth/image_rect', '/depth/camera_info', '/amplitude/image_rect',
+       '/confidence/image_rect', '/points')
+
+
+@pytest.mark.parametrize(('wanted', 'work'), [
+    (ALL, {'decode': 1, 'depth_to_points': 1, 'array_to_image': 3}),
+    (('/depth/image_rect',), {'decode': 1, 'array_to_image': 1}),
+    (('/points',), {'decode': 1, 'depth_to_points': 1}),
+    (('/depth/camera_info',), {}),  # the rectified camera needs no decoding
+    ((), {}),
+])
+def test_only_the_outputs_wanted_are_computed(node: Any, monkeypatch: pytest.MonkeyPatch,
+                                              wanted: tuple[str, ...],
+                                              work: dict[str, int]) -> None:
+    node.on_frame(*_inputs())
+    everything = dict(node.outbox)
+    node.outbox.clear()
+    decoded = count_calls(monkeypatch, node.decoder, 'decode')
+    built = count_calls(monkeypatch, tof, 'depth_to_points', 'array_to_image')
+    want_only(monkeypatch, *wanted)
+    node.on_frame(*_inputs())
+    assert node.outbox == {topic: everything[topic] for topic in wanted}
+    assert decoded + built == work
+    assert node.drops == {}
+    assert node.accounting.skipped == (0 if wanted else 1)
