@@ -67,7 +67,8 @@ class Output:
     def wanted(self) -> bool:
         """True when the output is worth computing: the offline harness's sink is installed
         (every output is written offline), or a subscription matches the publisher. Cheap
-        (about 1.3 us: one rcl call), so a node asks once per frame, before the work."""
+        (0.2 us with the sink, 1.3 to 3.5 us live: one rcl call), so a node asks once per
+        frame, before the work."""
         return self._node.sink is not None or self._publisher.get_subscription_count() > 0
 
     @property
