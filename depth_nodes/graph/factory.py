@@ -14,6 +14,7 @@ from depth_nodes.errors import ConfigError
 from depth_nodes.graph.parameter_files import addressed_parameters, parameters_for
 from depth_nodes.graph.schema import GraphConfig, NodeSpec
 from depth_nodes.nodes import NODE_PLUGINS
+from depth_nodes.nodes.registry import entry_of
 from depth_nodes.ros.node import DepthNode
 
 
@@ -88,10 +89,15 @@ def instantiate(spec: NodeSpec, params: dict[str, Any], *, required: set[str] | 
 
 def camera_readers(config: GraphConfig) -> list[str]:
     """Full names of the nodes of ``config`` that read a camera driver's images (their
-    class says ``reads_camera_images``: the rectifier, the structured-light decoder): the
-    ones an ``image_transport`` choice for the camera applies to."""
-    return [spec.fully_qualified_name for spec in config.nodes
-            if getattr(resolve_plugin(spec.plugin), 'reads_camera_images', False)]
+    registry entry says ``camera_reader``: the rectifier, the structured-light decoder, the
+    time-of-flight node): the ones an ``image_transport`` choice for the camera applies to.
+    A plugin given as ``module:Class`` counts when it is a registry node's class."""
+    readers = []
+    for spec in config.nodes:
+        entry = entry_of(spec.plugin)
+        if entry is not None and entry.camera_reader:
+            readers.append(spec.fully_qualified_name)
+    return readers
 
 
 def with_transport(params: dict[str, dict[str, Any]], node_names: list[str],

@@ -12,8 +12,8 @@ camera names and with the same parameter-file rules:
 * ``namespace``, ``left``, ``right``, ``image``: a camera driver's names
   (:func:`~depth_nodes.graph.description.rename_cameras`);
 * ``image_transport``: how the nodes that read the driver's images take them (the
-  rectifiers and the structured-light decoder, whose classes say
-  ``reads_camera_images``).
+  rectifiers, the structured-light decoder and the time-of-flight node: the registry's
+  camera readers, see :func:`~depth_nodes.graph.description.camera_readers`).
 
 Pure Python on the package's own modules: the launch files' tests run it without `launch`.
 """

@@ -78,8 +78,6 @@ def _models(info_msg: CameraInfo) -> tuple[CameraModel, CameraModel]:
 class RectifyNode(DepthNode):
     """Undistorts and rectifies one camera's raw images with its CameraInfo."""
 
-    reads_camera_images = True
-
     def __init__(self, node_name: str = 'rectify', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS)
@@ -142,10 +140,5 @@ class RectifyNode(DepthNode):
             self.pub_rect.publish(array_to_image(rectified, encoding, image_msg.header))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``rectify`` (``ros2 run depth_nodes rectify``)."""
-    sys.exit(run_node(RectifyNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.rectify` (tools/live)
+    sys.exit(run_node(RectifyNode))

@@ -101,8 +101,6 @@ PARAMETERS = [
 class StructuredLightNode(DepthNode):
     """Decodes Gray-code / phase-shift sequences or speckle images into depth."""
 
-    reads_camera_images = True
-
     def __init__(self, node_name: str = 'structured_light', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS, validated(_settings))
@@ -328,10 +326,5 @@ def _geometry(info: CameraInfo, projector_info: CameraInfo
     return geometry, camera_rays(camera)
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``structured_light`` (``ros2 run depth_nodes structured_light``)."""
-    sys.exit(run_node(StructuredLightNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.structured_light` (tools/live)
+    sys.exit(run_node(StructuredLightNode))

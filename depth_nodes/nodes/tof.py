@@ -111,8 +111,6 @@ def rectified_info(camera: CameraModel, header: Any) -> CameraInfo:
 class ToFNode(DepthNode):
     """Raw correlation frames -> depth, amplitude, confidence, points."""
 
-    reads_camera_images = True
-
     def __init__(self, node_name: str = 'tof', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.params = NodeParameters(self, PARAMETERS, validated(_settings))
@@ -168,10 +166,5 @@ class ToFNode(DepthNode):
                                                  extra_fields={'intensity': result.amplitude}))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``tof`` (``ros2 run depth_nodes tof``)."""
-    sys.exit(run_node(ToFNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.tof` (tools/live)
+    sys.exit(run_node(ToFNode))
