@@ -46,3 +46,24 @@ class RestoreNode(DepthNode):
     def on_image(self, msg: Image) -> None:
         pixels = image_to_array(msg)
         self.out.publish(array_to_image(255 - pixels, 'mono8', msg.header))
+
+
+class RunningSumNode(DepthNode):
+    """Publishes the running sum of the mono8 images on `image` (clipped to 255): every
+    output depends on all the frames before it, so the node says ``keeps_state``."""
+
+    keeps_state = True
+
+    def __init__(self, node_name: str = 'running_sum', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.total: np.ndarray | None = None
+        self.add_input(Image, 'image', self.on_image)
+        self.out = self.add_output(Image, 'image_sum')
+
+    def on_image(self, msg: Image) -> None:
+        pixels = image_to_array(msg).astype(np.int64)
+        if self.total is None or self.total.shape != pixels.shape:
+            self.total = np.zeros_like(pixels)
+        self.total += pixels
+        self.out.publish(array_to_image(np.minimum(self.total, 255).astype(np.uint8), 'mono8',
+                                        msg.header))
