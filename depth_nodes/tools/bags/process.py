@@ -1,11 +1,14 @@
-"""Offline bag harness: drive a bag's messages through the live node classes.
+"""`depth-nodes process`: a graph's nodes run over a bag offline, everything written to a
+new bag.
 
 Every message of the input bag is copied to the output bag (like ``ros2 bag record -a``
 during a replay would), and so is its custom metadata (a generated bag's simulator
-settings), and every message a node publishes is written at the timestamp of
-the input message that caused it and handed, synchronously and in order, to every node that
-subscribes to its topic. Nothing goes over DDS and nothing can be lost to queue depths, so a
-run is deterministic.
+settings); every message a node publishes is written at the timestamp of the input message
+that caused it and handed, synchronously and in order, to every node that subscribes to its
+topic (:mod:`~depth_nodes.tools.bags.harness`). Nothing goes over DDS and nothing can be
+lost to queue depths, so a run is deterministic, on one worker or on several
+(:mod:`~depth_nodes.tools.bags.parallel`, the same output). This module sets the run up:
+the graph and its parameters, the transports the bag's images need, what the bag lacks.
 """
 
 from __future__ import annotations
@@ -115,7 +118,8 @@ def process_bag(
 
     Raises:
         BagError: The input bag is missing/corrupt, or the output exists.
-        ConfigError: The graph or parameter file is invalid.
+        ConfigError: The graph or parameter file is invalid, or a node that keeps state
+            would run on several workers.
     """
     if Path(in_bag).resolve() == Path(out_bag).resolve():
         raise BagError(f'output bag {out_bag} is the input bag: choose another folder')
