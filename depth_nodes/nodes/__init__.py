@@ -17,7 +17,3 @@ NODE_PLUGINS: dict[str, str] = {entry.name: entry.target for entry in NODES}
 UPSTREAM_EXECUTABLES: dict[str, tuple[str, str, str]] = {
     entry.upstream.executable: (entry.upstream.package, entry.name, entry.upstream.node_name)
     for entry in NODES if entry.upstream is not None}
-
-#: Plugin names of the nodes that read a camera driver's images (``camera_reader``).
-CAMERA_READERS: frozenset[str] = frozenset(entry.name for entry in NODES
-                                           if entry.camera_reader)
