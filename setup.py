@@ -5,37 +5,20 @@ uses the system rclpy. Outside one, `pip install -e '.[ros,dev]'` pulls ROS 2 Ja
 its PyPI wheels (the `ros` extra); `make venv` does that with pinned versions.
 """
 
+import runpy
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = 'depth_nodes'
 
-# One console script per node, so `ros2 run depth_nodes <node>` works; named like the node's
-# plugin in depth_nodes/nodes/__init__.py::NODE_PLUGINS.
-NODE_SCRIPTS = [
-    'rectify = depth_nodes.nodes.rectify:main',
-    'sgm_stereo = depth_nodes.nodes.sgm_stereo:main',
-    'cross_check = depth_nodes.nodes.cross_check:main',
-    'point_cloud = depth_nodes.nodes.point_cloud:main',
-    'structured_light = depth_nodes.nodes.structured_light:main',
-    'static_transform = depth_nodes.nodes.static_transform:main',
-    'point_cloud_xyz = depth_nodes.nodes.point_cloud_xyz:main',
-    'point_cloud_xyzrgb = depth_nodes.nodes.point_cloud_xyzrgb:main',
-    'register_depth = depth_nodes.nodes.register_depth:main',
-    'convert_metric = depth_nodes.nodes.convert_metric:main',
-    'depth_disparity = depth_nodes.nodes.depth_disparity:main',
-    'tof = depth_nodes.nodes.tof:main',
-    # image_pipeline's executable names (depth_nodes/nodes/__init__.py: UPSTREAM_EXECUTABLES)
-    'rectify_node = depth_nodes.nodes.upstream:rectify_node',
-    'disparity_node = depth_nodes.nodes.upstream:disparity_node',
-    'point_cloud_node = depth_nodes.nodes.upstream:point_cloud_node',
-    'convert_metric_node = depth_nodes.nodes.upstream:convert_metric_node',
-    'point_cloud_xyz_node = depth_nodes.nodes.upstream:point_cloud_xyz_node',
-    'point_cloud_xyzrgb_node = depth_nodes.nodes.upstream:point_cloud_xyzrgb_node',
-    'register_node = depth_nodes.nodes.upstream:register_node',
-    'depth_disparity_node = depth_nodes.nodes.upstream:depth_disparity_node',
-]
+# One console script per node (`ros2 run depth_nodes <node>`), plus image_pipeline's
+# executable names, all from the node registry: read as a file, since neither the package
+# nor rclpy can be imported while the package is being built.
+REGISTRY = runpy.run_path(str(Path(__file__).resolve().parent / PACKAGE / 'nodes' /
+                              'registry.py'))
+NODE_SCRIPTS = REGISTRY['console_scripts']()
 
 ROS_WHEELS = [
     'ros-jazzy-rclpy[fastrtps]',

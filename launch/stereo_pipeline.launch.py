@@ -2,14 +2,14 @@
 
 For users with a full ROS 2 install (`ros2 launch depth_nodes stereo_pipeline.launch.py`). It reads
 the graph description that `depth-nodes pipeline` and `depth-nodes process` run, through
-the package's own ``depth_nodes.graph.launching``, so the three cannot drift apart. Launch
+the package's own ``depth_nodes.graph.launch_file``, so the three cannot drift apart. Launch
 arguments (all optional): params_file (a stereo_image_proc parameter file works unchanged),
 namespace, left, right, image (a camera driver's names) and image_transport, e.g.
 `ros2 launch depth_nodes stereo_pipeline.launch.py namespace:=/camera image_transport:=compressed
 params_file:=/path/to/disparity_params.yaml`.
 """
 
-from depth_nodes.graph.launching import launch_description
+from depth_nodes.graph.launch_file import launch_description
 
 
 def generate_launch_description():

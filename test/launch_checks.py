@@ -7,13 +7,14 @@ graph/test_launch_files.py and packaging/test_colcon_workspace.py.
 
 from __future__ import annotations
 
-import ast
 import importlib.util
 import os
+import runpy
 import sys
 import types
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import pytest
 from helpers import REPO
@@ -34,16 +35,26 @@ NODE_KWARGS = frozenset({
 })
 
 
+def setup_arguments() -> dict[str, Any]:
+    """The keyword arguments setup.py gives ``setuptools.setup`` (run against a stand-in
+    for setuptools that records them)."""
+    given: dict[str, Any] = {}
+    setuptools = types.ModuleType('setuptools')
+    setuptools.setup = lambda **kwargs: given.update(kwargs)  # type: ignore[attr-defined]
+    setuptools.find_packages = lambda **kwargs: []  # type: ignore[attr-defined]
+    with mock.patch.dict(sys.modules, {'setuptools': setuptools}):
+        runpy.run_path(str(REPO / 'setup.py'), run_name='__main__')
+    assert given, 'setup.py did not call setuptools.setup'
+    return given
+
+
 def node_scripts() -> dict[str, str]:
-    """``NODE_SCRIPTS`` of setup.py as ``{executable: 'module:function'}``."""
-    tree = ast.parse((REPO / 'setup.py').read_text())
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and any(
-                isinstance(t, ast.Name) and t.id == 'NODE_SCRIPTS' for t in node.targets):
-            entries = ast.literal_eval(node.value)
-            return {name.strip(): target.strip()
-                    for name, _, target in (entry.partition('=') for entry in entries)}
-    raise AssertionError('setup.py defines no NODE_SCRIPTS list')
+    """setup.py's console scripts but ``depth-nodes``, as ``{executable: 'module:function'}``."""
+    entries = setup_arguments()['entry_points']['console_scripts']
+    scripts = {name.strip(): target.strip()
+               for name, _, target in (entry.partition('=') for entry in entries)}
+    assert scripts.pop('depth-nodes') == 'depth_nodes.tools.cli:main'
+    return scripts
 
 
 def mirrored_config(launch_file: Path, share: Path) -> Path | None:
@@ -118,6 +129,8 @@ def run_launch_file(path: Path, prefix: Path, monkeypatch: pytest.MonkeyPatch,
         monkeypatch.setitem(sys.modules, name, module)
     monkeypatch.setenv('AMENT_PREFIX_PATH', str(prefix))
     monkeypatch.setattr(sys, 'dont_write_bytecode', True)  # no __pycache__ in launch/
+    # imported afresh against these stand-ins (it imports `launch` at the top)
+    monkeypatch.delitem(sys.modules, 'depth_nodes.graph.launch_file', raising=False)
 
     spec = importlib.util.spec_from_file_location(f'_launch_{path.stem.replace(".", "_")}',
                                                   path)

@@ -1,8 +1,9 @@
 """What the launch files start: one node process per node of a graph description.
 
-``launch/*.launch.py`` call :func:`launch_nodes` with their launch arguments, so the
-nodes `ros2 launch` starts are the ones `depth-nodes pipeline` composes and `depth-nodes
-process` runs, under the same camera names and with the same parameter-file rules:
+``launch/*.launch.py`` (through :mod:`depth_nodes.graph.launch_file`) call
+:func:`launch_nodes` with their launch arguments, so the nodes `ros2 launch` starts are
+the ones `depth-nodes pipeline` composes and `depth-nodes process` runs, under the same
+camera names and with the same parameter-file rules:
 
 * ``params_file``: a ROS 2 parameter file, such as one written for stereo_image_proc; an
   entry applies to a node by its name, full name or alias (``disparity_node``) or through
@@ -11,8 +12,8 @@ process` runs, under the same camera names and with the same parameter-file rule
 * ``namespace``, ``left``, ``right``, ``image``: a camera driver's names
   (:func:`~depth_nodes.graph.description.rename_cameras`);
 * ``image_transport``: how the nodes that read the driver's images take them (the
-  rectifiers and the structured-light decoder, whose classes say
-  ``reads_camera_images``).
+  rectifiers, the structured-light decoder and the time-of-flight node: the registry's
+  camera readers, see :func:`~depth_nodes.graph.description.camera_readers`).
 
 Pure Python on the package's own modules: the launch files' tests run it without `launch`.
 """
@@ -80,27 +81,3 @@ def launch_nodes(config_path: str | Path, *, params_file: str | None = None,
                       'remappings': list(spec.remappings.items())})
     return nodes
 
-
-def launch_description(config_name: str) -> Any:
-    """The LaunchDescription of a launch file that starts the graph
-    ``config/<config_name>`` of the installed package, one process per node, with the
-    launch arguments of :data:`LAUNCH_ARGUMENTS` (all optional).
-
-    `launch`, `launch_ros` and `ament_index_python` come with a ROS install (not PyPI):
-    imported here, when a launch file runs.
-    """
-    from ament_index_python.packages import get_package_share_directory
-    from launch import LaunchDescription  # type: ignore[attr-defined,unused-ignore]
-    from launch.actions import DeclareLaunchArgument, OpaqueFunction
-    from launch.substitutions import LaunchConfiguration
-    from launch_ros.actions import Node
-
-    def nodes(context: Any, *args: Any, **kwargs: Any) -> list[Any]:
-        config = Path(get_package_share_directory('depth_nodes')) / 'config' / config_name
-        given = {name: LaunchConfiguration(name).perform(context) for name in LAUNCH_ARGUMENTS}
-        return [Node(package='depth_nodes', output='screen', **node)
-                for node in launch_nodes(config, **given)]
-
-    arguments = [DeclareLaunchArgument(name, default_value='', description=text)
-                 for name, text in LAUNCH_ARGUMENTS.items()]
-    return LaunchDescription([*arguments, OpaqueFunction(function=nodes)])

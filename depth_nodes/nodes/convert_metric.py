@@ -45,10 +45,5 @@ class ConvertMetricNode(DepthImageNode):
             self.pub_image.publish(array_to_image(read[0], '32FC1', msg.header))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console scripts ``convert_metric`` and ``convert_metric_node``."""
-    sys.exit(run_node(ConvertMetricNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.convert_metric` (tools/live)
+    sys.exit(run_node(ConvertMetricNode))

@@ -135,10 +135,5 @@ class CrossCheckNode(DepthNode):
                 np.ascontiguousarray(result.confidence, np.float32), '32FC1', header))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``cross_check`` (``ros2 run depth_nodes cross_check``)."""
-    sys.exit(run_node(CrossCheckNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.cross_check` (tools/live)
+    sys.exit(run_node(CrossCheckNode))

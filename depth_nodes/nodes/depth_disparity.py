@@ -105,10 +105,5 @@ class DepthDisparityNode(DepthImageNode):
             max_disparity=focal * baseline / nearest, delta_d=values['delta_d']))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console scripts ``depth_disparity`` and ``depth_disparity_node``."""
-    sys.exit(run_node(DepthDisparityNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.depth_disparity` (tools/live)
+    sys.exit(run_node(DepthDisparityNode))

@@ -225,10 +225,5 @@ class PointCloudNode(DepthNode):
             self.pub_depth.publish(_depth_image(result.depth, values['depth_encoding'], header))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``point_cloud`` (``ros2 run depth_nodes point_cloud``)."""
-    sys.exit(run_node(PointCloudNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.point_cloud` (tools/live)
+    sys.exit(run_node(PointCloudNode))

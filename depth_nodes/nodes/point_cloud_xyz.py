@@ -75,11 +75,5 @@ class PointCloudXyzNode(DepthImageNode):
                                                  depth_msg.header))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console scripts ``point_cloud_xyz`` and ``point_cloud_xyz_node`` (depth_image_proc's
-    executable name)."""
-    sys.exit(run_node(PointCloudXyzNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.point_cloud_xyz` (tools/live)
+    sys.exit(run_node(PointCloudXyzNode))

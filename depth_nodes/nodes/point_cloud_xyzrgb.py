@@ -94,10 +94,5 @@ class PointCloudXyzrgbNode(DepthImageNode):
                                                  depth_msg.header, rgb=rgb))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console scripts ``point_cloud_xyzrgb`` and ``point_cloud_xyzrgb_node``."""
-    sys.exit(run_node(PointCloudXyzrgbNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.point_cloud_xyzrgb` (tools/live)
+    sys.exit(run_node(PointCloudXyzrgbNode))

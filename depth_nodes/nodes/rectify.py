@@ -151,10 +151,5 @@ class RectifyNode(DepthNode):
                 array_to_image(to_gray(rectified, encoding), mono, image_msg.header))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``rectify`` (``ros2 run depth_nodes rectify``)."""
-    sys.exit(run_node(RectifyNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.rectify` (tools/live)
+    sys.exit(run_node(RectifyNode))

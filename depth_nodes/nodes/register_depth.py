@@ -149,10 +149,5 @@ class RegisterNode(DepthImageNode):
             self.pub_info.publish(info)
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console scripts ``register_depth`` and ``register_node``."""
-    sys.exit(run_node(RegisterNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.register_depth` (tools/live)
+    sys.exit(run_node(RegisterNode))

@@ -427,10 +427,5 @@ class SgmStereoNode(DepthNode):
         super().destroy_node()
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``sgm_stereo`` (``ros2 run depth_nodes sgm_stereo``)."""
-    sys.exit(run_node(SgmStereoNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.sgm_stereo` (tools/live)
+    sys.exit(run_node(SgmStereoNode))

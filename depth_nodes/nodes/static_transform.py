@@ -83,10 +83,5 @@ class StaticTransformNode(DepthNode):
         self.add_output(TFMessage, '/tf_static', qos=TF_STATIC_QOS).publish(self.message)
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``static_transform`` (``ros2 run depth_nodes static_transform``)."""
-    sys.exit(run_node(StaticTransformNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.static_transform` (tools/live)
+    sys.exit(run_node(StaticTransformNode))

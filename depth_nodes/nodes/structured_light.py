@@ -345,10 +345,5 @@ def _geometry(info: CameraInfo, projector_info: CameraInfo
     return geometry, camera_rays(camera)
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``structured_light`` (``ros2 run depth_nodes structured_light``)."""
-    sys.exit(run_node(StructuredLightNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.structured_light` (tools/live)
+    sys.exit(run_node(StructuredLightNode))

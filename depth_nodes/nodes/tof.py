@@ -184,10 +184,5 @@ class ToFNode(DepthNode):
                 points, header, extra_fields={'intensity': result.amplitude}))
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console script ``tof`` (``ros2 run depth_nodes tof``)."""
-    sys.exit(run_node(ToFNode, args))
-
-
-if __name__ == '__main__':
-    main()
+if __name__ == '__main__':  # `python -m depth_nodes.nodes.tof` (tools/live)
+    sys.exit(run_node(ToFNode))

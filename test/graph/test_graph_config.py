@@ -8,8 +8,10 @@ import pytest
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import (
+    GraphConfig,
     NodeSpec,
     addressed_parameters,
+    camera_readers,
     load_graph_config,
     load_params_file,
     parameters_for,
@@ -55,6 +57,19 @@ def test_default_config_is_valid() -> None:
     assert config.name == 'stereo'
     for spec in config.nodes:
         assert resolve_plugin(spec.plugin)
+
+
+def test_camera_readers_are_the_registrys(tmp_path: Path) -> None:
+    """The nodes an image_transport choice applies to: registry nodes marked camera_reader,
+    named by plugin name or by their module:Class; no other class."""
+    config = load_graph_config(default_config_path())
+    assert camera_readers(config) == ['/stereo/left/rectify_left', '/stereo/right/rectify_right']
+    graph = GraphConfig('g', [
+        NodeSpec('tof', 'tof', '/cam'),
+        NodeSpec('sl', 'depth_nodes.nodes.structured_light:StructuredLightNode', '/cam'),
+        NodeSpec('cloud', 'point_cloud_xyz', '/cam'),
+        NodeSpec('invert', 'harness_nodes:InvertNode', '/cam')])
+    assert camera_readers(graph) == ['/cam/tof', '/cam/sl']
 
 
 @pytest.mark.parametrize(('text', 'message'), [

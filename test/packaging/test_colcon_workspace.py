@@ -32,6 +32,7 @@ from sensor_msgs.msg import Image
 
 from depth_nodes.graph.description import load_params_file
 from depth_nodes.nodes.rectify import PARAMETERS as RECTIFY_PARAMETERS
+from depth_nodes.nodes.registry import NODES
 from depth_nodes.ros.image import image_to_array, to_gray
 from depth_nodes.tools.bags.io import BagReader
 
@@ -131,6 +132,20 @@ def test_one_executable_per_node_and_the_depth_nodes_command(workspace: Workspac
         shebang = path.read_text().splitlines()[0]
         assert shebang.startswith('#!'), name
         assert Path(shebang[2:]).resolve() == Path(sys.executable).resolve(), name
+
+
+@pytest.mark.parametrize('script', ['rectify', 'sgm_stereo', 'disparity_node'])
+def test_an_installed_node_script_starts_its_node(workspace: Workspace, script: str,
+                                                  tmp_path: Path) -> None:
+    """setuptools' wrapper (it looks the entry point up in the install space's metadata)
+    reaches the registry's script: ``--help`` prints its summary and its node's notes."""
+    env = workspace.environment(_clean_env())
+    shown = subprocess.run([str(workspace.lib / script), '--help'], env=env, cwd=tmp_path,
+                           capture_output=True, text=True, timeout=120, check=False)
+    assert shown.returncode == 0, shown.stderr
+    entry = next(e for e in NODES if script in (e.name, getattr(e.upstream, 'executable', '')))
+    assert shown.stdout.splitlines()[0].endswith(f': {entry.summary}')
+    assert f'usage: {script} [--ros-args' in shown.stdout
 
 
 def test_share_folder_and_ament_index(workspace: Workspace) -> None:

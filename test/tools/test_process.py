@@ -15,7 +15,7 @@ from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
-from depth_nodes.errors import BagError
+from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.graph.description import GraphConfig, NodeSpec, load_graph_config
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.tools.bags.io import BagReader, BagWriter
@@ -249,3 +249,46 @@ def test_a_full_disk_ends_the_run_in_one_line_with_no_output(
     err = capfd.readouterr().err
     assert 'Traceback' not in err
     assert 'internal_error' not in err
+
+
+STATEFUL = """
+graph:
+  name: stateful
+  nodes:
+    - {name: invert, plugin: 'harness_nodes:InvertNode', namespace: /stereo/left,
+       remappings: {image: image_raw}}
+    - {name: running_mean, plugin: 'harness_nodes:RunningMeanNode', namespace: /stereo/left,
+       remappings: {image: image_inverted}}
+"""
+
+
+def test_a_node_that_keeps_state_is_refused_on_several_workers(
+        tmp_path: Path, ros_env: dict[str, str]) -> None:
+    """A worker that starts mid-bag would lack what such a node gathered: `--workers N` and
+    `--ray` stop before anything runs, naming the node; one worker runs the graph."""
+    frames = _frames(4)
+    _input_bag(tmp_path / 'in', frames)
+    (tmp_path / 'g.yaml').write_text(STATEFUL)
+    config = load_graph_config(tmp_path / 'g.yaml')
+    for options, how in (({'workers': 2}, '--workers 2'), ({'ray': True}, '--ray')):
+        with pytest.raises(ConfigError) as raised:
+            process_bag(tmp_path / 'in', tmp_path / 'out', config=config, **options)
+        assert str(raised.value) == (
+            f'{how}: node /stereo/left/running_mean keeps state from frame to frame, which a '
+            'bag split between workers would lose; use one worker (--workers 1, without '
+            '--ray)')
+        assert not (tmp_path / 'out').exists()
+    shown = run_cli(['process', str(tmp_path / 'in'), str(tmp_path / 'out'), '--config',
+                     str(tmp_path / 'g.yaml'), '--workers', '3'], env=ros_env)
+    assert shown.returncode == 1
+    assert shown.stderr.strip().splitlines() == [
+        'depth-nodes process: error: --workers 3: node /stereo/left/running_mean keeps state '
+        'from frame to frame, which a bag split between workers would lose; use one worker '
+        '(--workers 1, without --ray)']
+    report = process_bag(tmp_path / 'in', tmp_path / 'out', config=config)
+    means = _decoded(tmp_path / 'out', '/stereo/left/image_mean')
+    assert len(means) == report.published['/stereo/left/image_mean'] == len(frames)
+    inverted = np.cumsum([255 - f.astype(np.float64) for f in frames], axis=0)
+    expected = np.rint(inverted / np.arange(1, len(frames) + 1)[:, None, None]).astype(np.uint8)
+    for (_, got), want in zip(means, expected, strict=True):
+        np.testing.assert_array_equal(got, want)

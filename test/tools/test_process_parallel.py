@@ -23,25 +23,21 @@ from depth_nodes.ros.dds import PROFILE_VARIABLES
 from depth_nodes.sim import StereoSimConfig
 from depth_nodes.sim.projector import ProjectorSimConfig
 from depth_nodes.sim.stereo import simulate_stereo
+from depth_nodes.tools.bags.engines import LocalEngine
 from depth_nodes.tools.bags.generate import frame_messages
 from depth_nodes.tools.bags.io import BagReader, BagWriter, serialize
-from depth_nodes.tools.bags.parallel import (
+from depth_nodes.tools.bags.process import default_config_path, process_bag
+from depth_nodes.tools.bags.report import ProcessReport, Progress
+from depth_nodes.tools.bags.segments import (
     END,
-    LocalEngine,
     Segment,
     SegmentJob,
     SegmentResult,
     claim_spill,
     run_segment,
     segments,
-    stitch,
 )
-from depth_nodes.tools.bags.process import (
-    ProcessReport,
-    _Progress,
-    default_config_path,
-    process_bag,
-)
+from depth_nodes.tools.bags.stitching import stitch
 from depth_nodes.tools.bags.structured_light import (
     REFERENCE_FILE,
     StructuredLightBagConfig,
@@ -233,7 +229,7 @@ class _Tty(io.StringIO):
 
 def test_progress_shows_frames_rate_and_eta_on_a_terminal_only() -> None:
     shown = _Tty()
-    bar = _Progress(200, shown)
+    bar = Progress(200, shown)
     bar.update(0, force=True)
     bar.update(50, force=True)
     bar.close()
@@ -242,7 +238,7 @@ def test_progress_shows_frames_rate_and_eta_on_a_terminal_only() -> None:
     assert 'ETA' in shown.getvalue()
     assert shown.getvalue().endswith('\n')
     quiet = io.StringIO()
-    bar = _Progress(200, quiet)
+    bar = Progress(200, quiet)
     bar.update(50, force=True)
     bar.close()
     assert quiet.getvalue() == ''
@@ -353,6 +349,23 @@ def test_workers_leave_sigterm_to_the_main_process() -> None:
         engine.close()
 
 
+def _numba_threads() -> int:
+    import numba
+
+    return int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+
+
+def test_a_worker_has_its_share_of_the_cores() -> None:
+    """numba reads NUMBA_NUM_THREADS when it is imported: the pool's initializer must set
+    it before anything the worker imports brings numba in (the graph's modules do)."""
+    engine = LocalEngine(2)
+    try:
+        threads = engine._pool.submit(_numba_threads).result(WAIT_S)
+    finally:
+        engine.close()
+    assert threads == max(1, (os.cpu_count() or 1) // 2)
+
+
 def test_a_worker_that_dies_is_one_error_line(stereo_bag: Path, tmp_path: Path,
                                               worker_env: None) -> None:
     """A worker killed (the out-of-memory killer, say) while it runs a segment: a
@@ -382,8 +395,8 @@ from rclpy.context import Context
 from depth_nodes.ros.dds import use_large_message_profile
 use_large_message_profile()  # as every depth-nodes command does
 if sys.argv[1] == 'worker':
-    from depth_nodes.tools.bags.parallel import _worker_environment
-    _worker_environment()
+    from depth_nodes.tools.bags.segments import worker_environment
+    worker_environment()
 before = set(os.listdir('/dev/shm'))
 context = Context()
 rclpy.init(args=[], context=context)

@@ -10,13 +10,16 @@ from __future__ import annotations
 import contextlib
 import functools
 import importlib
+import queue
+import shutil
 import struct
+import threading
 import zlib
 from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
+from types import SimpleNamespace, TracebackType
 from typing import Any, Self
 
 from rclpy.serialization import deserialize_message, serialize_message
@@ -28,6 +31,11 @@ from rosbags.rosbag2 import (
     Writer,
 )
 from rosbags.typesys import Stores, get_typestore
+
+try:  # zstd is in the standard library from Python 3.14; rosbags needs the backport before
+    from compression import zstd  # type: ignore[import-not-found]
+except ImportError:
+    from backports import zstd  # type: ignore[import-not-found,no-redef,unused-ignore]
 
 from depth_nodes.errors import BagError, yaml_problem
 
@@ -337,10 +345,6 @@ def _set_chunk_compression_level(writer: Writer, level: int) -> None:
     storage: Any = writer.storage
     if not hasattr(storage, 'compressor'):
         raise BagError('this rosbags version does not allow a zstd level for MCAP chunks')
-    try:
-        from compression import zstd  # type: ignore[import-not-found]
-    except ImportError:
-        from backports import zstd  # type: ignore[import-not-found,no-redef,unused-ignore]
     storage.compressor = functools.partial(zstd.compress, level=level)
 
 
@@ -367,9 +371,6 @@ class _ChunkThread:
     """
 
     def __init__(self, storage: Any) -> None:
-        import queue
-        import threading
-
         self._storage = storage
         self._close_one = type(storage).close_chunk
         self._queue: queue.Queue[Any] = queue.Queue(PENDING_CHUNKS)
@@ -390,8 +391,6 @@ class _ChunkThread:
         self._queue.put(chunk)
 
     def _run(self) -> None:
-        from types import SimpleNamespace
-
         storage = self._storage
         while (chunk := self._queue.get()) is not None:
             if self._error is not None:
@@ -451,6 +450,4 @@ def remove_bag(path: str | Path) -> None:
 
 
 def _remove_tree(path: Path) -> None:
-    import shutil
-
     shutil.rmtree(path)

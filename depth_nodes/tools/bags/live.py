@@ -30,8 +30,18 @@ from rclpy.qos import (
     QoSProfile,
     ReliabilityPolicy,
 )
+from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+from rosgraph_msgs.msg import Clock
 
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.graph.description import checked_namespace
@@ -136,8 +146,6 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
                 for t in topics}
         clock_pub = None
         if options.clock:
-            from rosgraph_msgs.msg import Clock
-
             clock_pub = node.create_publisher(Clock, '/clock', _reliable())
         waited = {**pubs, '/clock': clock_pub} if clock_pub is not None else pubs
         _wait_for_subscribers(waited, options.wait_for_subscribers, log)
@@ -208,8 +216,6 @@ def _restamped(bag_msg: Any, shift: int) -> bytes:
     Raises:
         BagError: The message cannot be deserialised.
     """
-    from rclpy.serialization import serialize_message
-
     msg = bag_msg.deserialize()
     if not _shift_stamps(msg, shift):
         return bytes(bag_msg.data)
@@ -264,8 +270,6 @@ def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
         if (delay > 0 and STOP.wait(delay)) or stop_requested():
             break
         if clock_pub is not None:
-            from rosgraph_msgs.msg import Clock
-
             clock = Clock()
             clock.clock.sec, clock.clock.nanosec = divmod(bag_msg.timestamp + shift,
                                                           1_000_000_000)
@@ -278,14 +282,6 @@ def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
 
 def _to_bag_qos(profile: QoSProfile) -> Any:
     """An rclpy QoS profile as rosbags' Qos tuple (what rosbag2 writes to metadata)."""
-    from rosbags.interfaces import (
-        Qos,
-        QosDurability,
-        QosHistory,
-        QosLiveliness,
-        QosReliability,
-        QosTime,
-    )
 
     def when(duration: Any) -> Any:
         sec, nsec = divmod(int(duration.nanoseconds), 1_000_000_000)

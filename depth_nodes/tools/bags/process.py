@@ -1,25 +1,26 @@
-"""Offline bag harness: drive a bag's messages through the live node classes.
+"""`depth-nodes process`: a graph's nodes run over a bag offline, everything written to a
+new bag.
 
 Every message of the input bag is copied to the output bag (like ``ros2 bag record -a``
 during a replay would), and so is its custom metadata (a generated bag's simulator
-settings), and every message a node publishes is written at the timestamp of
-the input message that caused it and handed, synchronously and in order, to every node that
-subscribes to its topic. Nothing goes over DDS and nothing can be lost to queue depths, so a
-run is deterministic.
+settings); every message a node publishes is written at the timestamp of the input message
+that caused it and handed, synchronously and in order, to every node that subscribes to its
+topic (:mod:`~depth_nodes.tools.bags.harness`). Nothing goes over DDS and nothing can be
+lost to queue depths, so a run is deterministic, on one worker or on several
+(:mod:`~depth_nodes.tools.bags.parallel`, the same output). This module sets the run up:
+the graph and its parameters, the transports the bag's images need, what the bag lacks.
 """
 
 from __future__ import annotations
 
 import sys
-import tempfile
 import time
 from collections import Counter
-from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
 import rclpy
+from ament_index_python.packages import get_package_share_directory
 from rclpy.context import Context
 from sensor_msgs.msg import Image
 
@@ -36,8 +37,11 @@ from depth_nodes.graph.description import (
     unmatched_entries,
     with_transport,
 )
-from depth_nodes.tools.bags.io import BagReader, BagWriter, message_type_name, remove_bag
-from depth_nodes.tools.signals import stop_requested
+from depth_nodes.tools.bags.engines import Engine, LocalEngine, RayEngine
+from depth_nodes.tools.bags.harness import check_types, frame_topic, routes_of, run_graph
+from depth_nodes.tools.bags.io import BagReader, BagWriter, remove_bag
+from depth_nodes.tools.bags.parallel import refuse_stateful_nodes, run_parallel
+from depth_nodes.tools.bags.report import ProcessReport
 
 COMPRESSED = 'sensor_msgs/msg/CompressedImage'
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
@@ -56,121 +60,9 @@ def default_config_path() -> Path:
         if candidate.is_file():
             return candidate
     try:
-        from ament_index_python.packages import get_package_share_directory
-
         return Path(get_package_share_directory('depth_nodes')) / 'config' / DEFAULT_CONFIG.name
     except Exception:  # no ament index either: the source path, which then fails clearly
         return DEFAULT_CONFIG
-
-
-@dataclass
-class ProcessReport:
-    """What went in, what came out, and what nodes dropped, by reason."""
-
-    nodes: list[str] = field(default_factory=list)
-    consumed: Counter[str] = field(default_factory=Counter)
-    copied: Counter[str] = field(default_factory=Counter)
-    published: Counter[str] = field(default_factory=Counter)
-    drops: dict[str, Counter[str]] = field(default_factory=dict)
-    shadowed: list[str] = field(default_factory=list)
-    unfed: list[str] = field(default_factory=list)
-    #: Nodes switched to a compressed transport because the bag holds only that.
-    transports: dict[str, str] = field(default_factory=dict)
-    #: What the command line could say instead, when the bag holds the missing inputs
-    #: elsewhere (e.g. ``--namespace /camera``).
-    suggestions: list[str] = field(default_factory=list)
-    #: Parameter-file entries that address no node (rclpy would ignore them).
-    unmatched_params: list[str] = field(default_factory=list)
-    #: Input messages handled, of ``total`` in the bag.
-    done: int = 0
-    total: int = 0
-    #: True when a SIGINT / SIGTERM stopped the run (the output holds what was done).
-    interrupted: bool = False
-    #: The input topic whose messages count as frames (the most frequent one the graph
-    #: consumes), frames done and the run's wall-clock seconds.
-    frame_topic: str = ''
-    frames: int = 0
-    seconds: float = 0.0
-    workers: int = 1
-    engine: str = ''
-
-    def summary(self) -> str:
-        """One line: frames, messages, time, rate."""
-        rate = self.frames / self.seconds if self.seconds > 0 else 0.0
-        how = f'{self.workers} worker{"s" * (self.workers != 1)}'
-        if self.engine:
-            how += f' on {self.engine}'
-        return (f'processed {self.frames} frames ({self.done} of {self.total} messages) in '
-                f'{self.seconds:.1f} s: {rate:.2f} frames/s, {how}')
-
-    def format(self) -> str:
-        """A plain-text summary for the terminal."""
-        lines = [f'nodes: {", ".join(self.nodes) or "none"}']
-        lines.append('in:')
-        for topic in sorted(self.copied):
-            use = f'  -> {self.consumed[topic]} consumed' if self.consumed[topic] else ''
-            lines.append(f'  {topic:<40} {self.copied[topic]:>6}{use}')
-        lines.append('out:')
-        for topic in sorted(self.published) or ['(nothing published)']:
-            count = f'{self.published[topic]:>6}' if topic in self.published else ''
-            lines.append(f'  {topic:<40} {count}')
-        total_drops = sum(sum(c.values()) for c in self.drops.values())
-        lines.append(f'dropped: {total_drops}')
-        for node, counter in sorted(self.drops.items()):
-            for reason, n in sorted(counter.items()):
-                lines.append(f'  {node:<30} {reason:<28} {n:>6}')
-        for topic in self.shadowed:
-            lines.append(f'note: input topic {topic} is also published by a node; '
-                         'only the node output was written')
-        for node, transport in sorted(self.transports.items()):
-            lines.append(f'note: {node} reads its images with image_transport {transport} '
-                         '(the bag holds no raw ones)')
-        for topic in self.unfed:
-            lines.append(f'note: {topic} is subscribed but neither in the bag nor published')
-        return '\n'.join(lines)
-
-    def nothing_published(self) -> str:
-        """Why a run published nothing, for the one-line error."""
-        if not self.unfed:
-            return 'the graph published nothing (see the drops above)'
-        hint = ''
-        if self.suggestions:
-            hint = '; try ' + ' or '.join(self.suggestions)
-        return (f'the graph published nothing: its inputs {", ".join(self.unfed)} are not in '
-                f'the bag{hint}')
-
-
-class _Progress:
-    """A one-line progress display on a terminal (frames done, frames/s, ETA); silent
-    otherwise (the summary line says it all at the end)."""
-
-    def __init__(self, total_frames: int, stream: TextIO) -> None:
-        self.total = max(total_frames, 1)
-        self.stream = stream
-        self.enabled = stream.isatty()
-        self.start = time.monotonic()
-        self._shown = -1.0
-
-    def update(self, frames: int, *, force: bool = False) -> None:
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        if not force and now - self._shown < 0.25:
-            return
-        self._shown = now
-        elapsed = now - self.start
-        rate = frames / elapsed if elapsed > 0 else 0.0
-        eta = f'{(self.total - frames) / rate:.0f} s' if rate > 0 else '?'
-        percent = min(frames * 100 // self.total, 100)
-        bar = '#' * (percent // 4)
-        self.stream.write(f'\r[{bar:<25}] {percent:3d}% {frames}/{self.total} frames, '
-                          f'{rate:.2f} frames/s, ETA {eta}   ')
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            self.stream.write('\n')
-            self.stream.flush()
 
 
 def select_nodes(config: GraphConfig, names: list[str] | None) -> GraphConfig:
@@ -217,6 +109,7 @@ def process_bag(
             where the bag holds only ``<topic>/compressed``.
         workers: Graph copies running segments of the bag at once (see
             :mod:`depth_nodes.tools.bags.parallel`); the output is the same as with one.
+            A graph with a node that keeps state of its own (``keeps_state``) is refused.
         ray: Run the workers as Ray actors: on a local cluster started for the run, or on
             the one at ``ray_address``.
 
@@ -225,7 +118,8 @@ def process_bag(
 
     Raises:
         BagError: The input bag is missing/corrupt, or the output exists.
-        ConfigError: The graph or parameter file is invalid.
+        ConfigError: The graph or parameter file is invalid, or a node that keeps state
+            would run on several workers.
     """
     if Path(in_bag).resolve() == Path(out_bag).resolve():
         raise BagError(f'output bag {out_bag} is the input bag: choose another folder')
@@ -258,21 +152,21 @@ def process_bag(
             report.transports = switch
             nodes = create_nodes(config, params, context=context)
             routes, produced = routes_of(nodes)
-        _check_types(reader, routes)
+        check_types(reader, routes)
         report.unfed = sorted(set(routes) - set(reader.topics) - produced)
         report.suggestions = _suggestions(report.unfed, config, reader,
                                           {n.get_fully_qualified_name(): n.get_parameter(
                                               'image_transport').value for n in nodes
                                            if n.has_parameter('image_transport')})
-        report.frame_topic = _frame_topic(reader, routes, produced)
+        report.frame_topic = frame_topic(reader, routes, produced)
         report.workers = workers
         report.engine = ('Ray at ' + ray_address if ray_address else 'Ray') if ray else ''
+        if workers > 1 or ray:
+            refuse_stateful_nodes(nodes, '--ray' if ray else f'--workers {workers}')
         started = time.monotonic()
-        engine = None
+        engine: Engine | None = None
         try:
             if workers > 1 or ray:
-                from depth_nodes.tools.bags.parallel import LocalEngine, RayEngine
-
                 engine = RayEngine(workers, ray_address) if ray else LocalEngine(workers)
             writer = BagWriter(out_bag, overwrite=overwrite)
             try:
@@ -280,10 +174,10 @@ def process_bag(
                     for key, value in reader.custom_data.items():  # the simulator's settings
                         writer.set_custom_data(key, value)
                     if engine is None:
-                        _run(reader, writer, nodes, routes, produced, report, progress)
+                        run_graph(reader, writer, nodes, routes, produced, report, progress)
                     else:
-                        _run_parallel(reader, writer, nodes, config, params, engine, routes,
-                                      produced, report, progress, in_bag)
+                        run_parallel(reader, writer, nodes, config, params, engine, routes,
+                                     produced, report, progress, in_bag)
             except BagError as exc:  # e.g. the input is corrupt part-way, or the disk is
                 # full: no partial output
                 writer.discard()
@@ -301,17 +195,6 @@ def process_bag(
         rclpy.shutdown(context=context)
         reader.close()
     return report
-
-
-def routes_of(nodes: list[Any]) -> tuple[dict[str, list[Any]], set[str]]:
-    """Which node inputs each topic feeds, and the topics the nodes publish."""
-    routes: dict[str, list[Any]] = {}
-    produced: set[str] = set()
-    for node in nodes:
-        for spec_in in node.inputs:
-            routes.setdefault(spec_in.topic, []).append(spec_in)
-        produced.update(node.outputs)
-    return routes, produced
 
 
 def _compressed_inputs(nodes: list[Any], reader: BagReader, produced: set[str]
@@ -399,159 +282,3 @@ def _camera_pairs(reader: BagReader) -> list[str]:
             continue
         out.append(f'--namespace {parent} --left {left} --right {right} --image {image}')
     return out
-
-
-def _check_types(reader: BagReader, routes: dict[str, list[Any]]) -> None:
-    for topic, specs in routes.items():
-        if topic not in reader.topics:
-            continue
-        for spec_in in specs:
-            wanted = message_type_name(spec_in.msg_type)
-            if reader.topics[topic] != wanted:
-                raise BagError(f'topic {topic} in {reader.path} has type '
-                               f'{reader.topics[topic]}, but a node subscribes to it as {wanted}')
-
-
-def _run(
-    reader: BagReader,
-    writer: BagWriter,
-    nodes: list[Any],
-    routes: dict[str, list[Any]],
-    produced: set[str],
-    report: ProcessReport,
-    progress: TextIO | None,
-) -> None:
-    now = [0]
-    failed: list[BagError] = []
-
-    def sink(topic: str, msg: Any) -> None:
-        # a node's publish calls this: a write that fails (a full disk) ends the run below,
-        # instead of being taken by the node for a failure of its own frame
-        if failed:
-            return
-        try:
-            writer.write(topic, msg, now[0])
-        except BagError as exc:
-            failed.append(exc)
-            return
-        report.published[topic] += 1
-        for spec_in in routes.get(topic, ()):
-            spec_in.callback(msg)
-
-    for node in nodes:
-        node.sink = sink
-    bar = _Progress(reader.counts[report.frame_topic], progress or sys.stderr)
-    report.total = reader.message_count
-    for done, bag_msg in enumerate(reader.messages(), start=1):
-        if stop_requested():  # SIGINT / SIGTERM: close the bag with what is done
-            report.interrupted = True
-            break
-        report.done = done
-        now[0] = bag_msg.timestamp
-        if bag_msg.topic not in produced:
-            writer.write(bag_msg.topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype,
-                         qos=reader.qos.get(bag_msg.topic, ()))
-            report.copied[bag_msg.topic] += 1
-        subscribers = routes.get(bag_msg.topic)
-        if subscribers and bag_msg.topic not in produced:
-            msg = bag_msg.deserialize()
-            report.consumed[bag_msg.topic] += 1
-            for spec_in in subscribers:
-                spec_in.callback(msg)
-            if failed:
-                raise failed[0]
-        report.frames += bag_msg.topic == report.frame_topic
-        bar.update(report.frames)
-    bar.update(report.frames, force=True)
-    bar.close()
-    for node in nodes:  # what the nodes still hold can never complete: count it
-        node.finish_stream()
-    if failed:
-        raise failed[0]
-
-
-def _frame_topic(reader: BagReader, routes: dict[str, list[Any]], produced: set[str]) -> str:
-    """The consumed input topic with the most messages: its messages count as frames."""
-    consumed = [t for t in routes if t in reader.topics and t not in produced]
-    return min(consumed, key=lambda t: (-reader.counts[t], t)) if consumed else ''
-
-
-def _run_parallel(
-    reader: BagReader,
-    writer: BagWriter,
-    nodes: list[Any],
-    config: GraphConfig,
-    params: dict[str, dict[str, Any]],
-    engine: Any,
-    routes: dict[str, list[Any]],
-    produced: set[str],
-    report: ProcessReport,
-    progress: TextIO | None,
-    in_bag: str | Path,
-) -> None:
-    """:func:`_run` with the graph on ``engine``'s workers, segment by segment (see
-    :mod:`depth_nodes.tools.bags.parallel`); the main process reads the bag, checks each
-    message against what the worker handled, and writes the stitched output."""
-    from depth_nodes.tools.bags.parallel import (
-        SEGMENTS_PER_WORKER,
-        SPARSE_MESSAGES,
-        SegmentJob,
-        segments,
-        stitch,
-    )
-
-    consumed = sorted(t for t in routes if t in reader.topics and t not in produced)
-    sparse = tuple(t for t in consumed if reader.counts[t] <= SPARSE_MESSAGES)
-    dense = tuple(t for t in consumed if t not in sparse)
-    start_ns, end_ns = reader.time_range
-    # workers on this machine hand their outputs over in files beside the output bag
-    spill = None if engine.remote else tempfile.TemporaryDirectory(
-        prefix='.depth-nodes-', dir=writer.path.parent)
-    jobs = [SegmentJob(str(Path(in_bag).resolve()), config, params, segment, sparse, dense,
-                       spill.name if spill else None)
-            for segment in segments(start_ns, end_ns, engine.workers * SEGMENTS_PER_WORKER)]
-    try:
-        _stitch_into(writer, reader, stitch(engine.map(jobs, stop_requested)), nodes,
-                     routes, produced, report, progress)
-    finally:
-        if spill is not None:
-            spill.cleanup()
-
-
-def _stitch_into(writer: BagWriter, reader: BagReader, stitched: Iterator[Any],
-                 nodes: list[Any], routes: dict[str, list[Any]], produced: set[str],
-                 report: ProcessReport, progress: TextIO | None) -> None:
-    """Write the input messages and the workers' stitched outputs in the bag's order."""
-    from depth_nodes.tools.bags.parallel import END
-
-    by_name = {node.get_fully_qualified_name(): node for node in nodes}
-    bar = _Progress(reader.counts[report.frame_topic], progress or sys.stderr)
-    report.total = reader.message_count
-    messages = enumerate(reader.messages())
-    last_stamp = 0
-    for item in stitched:
-        if item.index != END:
-            index, bag_msg = next(messages)
-            if index != item.index or (bag_msg.topic, bag_msg.timestamp) != item.seen:
-                raise BagError(f'a worker read message {item.index} as {item.seen}, this '
-                               f'process message {index} as {bag_msg.topic} at '
-                               f'{bag_msg.timestamp}: use --workers 1')
-            report.done = index + 1
-            last_stamp = bag_msg.timestamp
-            if bag_msg.topic not in produced:
-                writer.write(bag_msg.topic, bag_msg.data, bag_msg.timestamp, bag_msg.msgtype,
-                             qos=reader.qos.get(bag_msg.topic, ()))
-                report.copied[bag_msg.topic] += 1
-            if routes.get(bag_msg.topic) and bag_msg.topic not in produced:
-                report.consumed[bag_msg.topic] += 1
-            report.frames += bag_msg.topic == report.frame_topic
-        for topic, msgtype, data in item.outputs:
-            writer.write(topic, data, last_stamp, msgtype)
-            report.published[topic] += 1
-        for name, reason, count in item.drops:
-            by_name[name].drops[reason] += count
-        bar.update(report.frames)
-    if report.done < report.total:
-        report.interrupted = True
-    bar.update(report.frames, force=True)
-    bar.close()

@@ -112,10 +112,16 @@ PRESETS: dict[str, StructuredLightBagConfig] = {
 }
 
 
-def _header(stamp_ns: int, frame_id: str) -> Header:
+def stamped_header(stamp_ns: int, frame_id: str) -> Header:
+    """A std_msgs/Header at ``stamp_ns`` nanoseconds in ``frame_id``."""
     header = Header(frame_id=frame_id)
     header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
     return header
+
+
+#: The old private name, which tools/evaluation/structured_light.py still imports: remove
+#: it once that imports stamped_header.
+_header = stamped_header
 
 
 def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfig, *,
@@ -153,12 +159,12 @@ def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfi
             for index, image in enumerate(capture.images):
                 stamp = config.start_stamp_ns + round(frame * period_ns)
                 frame += 1
-                h = _header(stamp, cam.frame_id)
+                h = stamped_header(stamp, cam.frame_id)
                 put('image_raw', array_to_image(image, 'mono8', h), stamp)
                 put('camera_info', model_to_camera_info(cam, h), stamp)
-                put('pattern', _header(stamp, f'{seq}:{index}/{pattern_set.count}'), stamp)
+                put('pattern', stamped_header(stamp, f'{seq}:{index}/{pattern_set.count}'), stamp)
                 put('projector/camera_info',
-                    model_to_camera_info(proj, _header(stamp, proj.frame_id)), stamp)
+                    model_to_camera_info(proj, stamped_header(stamp, proj.frame_id)), stamp)
                 if index == 0:
                     for topic, arr, enc in (('depth_gt', capture.depth, '32FC1'),
                                             ('projector_u_gt', capture.u, '32FC1'),
@@ -172,12 +178,12 @@ def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfi
                 return count
             stamp = config.start_stamp_ns + round(frame * period_ns)
             frame += 1
-            h = _header(stamp, cam.frame_id)
+            h = stamped_header(stamp, cam.frame_id)
             image = sim.render(dots, noise_seed=1000 + k)[0]
             put('speckle/image_raw', array_to_image(image, 'mono8', h), stamp)
             put('speckle/camera_info', model_to_camera_info(cam, h), stamp)
             put('projector/camera_info',
-                model_to_camera_info(proj, _header(stamp, proj.frame_id)), stamp)
+                model_to_camera_info(proj, stamped_header(stamp, proj.frame_id)), stamp)
     if config.speckle_frames:
         # the reference is wider than the camera's images (REFERENCE_MARGIN columns each
         # side, the same intrinsics otherwise): the dots that near and far surfaces at the
