@@ -426,7 +426,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'OFF')  # nodes run in-process
     import cv2
 
-    from depth_nodes.tools.bench.sgm import bench_rectify, bench_sgm
+    from depth_nodes.tools.bench.rectify import bench_rectify
+    from depth_nodes.tools.bench.sgm import bench_sgm
 
     threads = 2 if args.threads is None else args.threads
     cv2.setNumThreads(threads)
@@ -449,12 +450,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         print(bench_point_cloud(repeats=args.frames or 20).format())
     elif args.stage == 'tof':
-        from depth_nodes.tools.evaluation.tof import bench_tof
+        from depth_nodes.tools.bench.tof import bench_tof
 
         bag = args.bag or str(BUNDLED_BAGS / 'tof_vga')
         print(bench_tof(bag, repeats=args.frames or 20, threads=threads).format())
     elif args.stage == 'structured_light':
-        from depth_nodes.tools.evaluation.structured_light import bench_structured_light
+        from depth_nodes.tools.bench.structured_light import bench_structured_light
 
         bag = args.bag or str(BUNDLED_BAGS / 'structured_light_vga')
         print(bench_structured_light(bag, repeats=args.frames or 20).format())

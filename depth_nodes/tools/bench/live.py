@@ -199,7 +199,7 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
                            else {}, composed=composed)
     try:
         graph.start()
-        _wait(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
+        wait_until(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
         stamp = warm_up(feeder, frames, graph, warmup)
         time.sleep(1.5)  # a diagnostics period: the drops so far are the warm-up's
         drops_before = dict(last_status)
@@ -276,7 +276,7 @@ def warm_up(feeder: StereoFeeder, frames: list[StereoFrame], graph: GraphProcess
         if feeder.complete(stamp):
             done += 1
         elif time.monotonic() > deadline:
-            raise ConfigError(f'bench --live: no frame came out of the graph within '
+            raise ConfigError(f'no frame came out of the graph within '
                               f'{FIRST_FRAME_TIMEOUT_S:g} s')
     return stamp
 
@@ -285,17 +285,23 @@ def _check_alive(graph: GraphProcesses) -> None:
     exited = graph.exited()
     if exited:
         name, code = next(iter(exited.items()))
-        raise ConfigError(f'bench --live: node {name} exited with status {code}:\n'
+        raise ConfigError(f'node {name} exited with status {code}:\n'
                           f'{graph.log(name)[-2000:]}')
 
 
-def _wait(done: Callable[[], bool], timeout: float, graph: GraphProcesses,
-          what: str) -> None:
+def wait_until(done: Callable[[], bool], timeout: float, graph: GraphProcesses,
+               what: str) -> None:
+    """Wait until ``done()`` is true.
+
+    Raises:
+        ConfigError: A node of ``graph`` exited, or ``timeout`` s passed (``what`` says
+            what was waited for).
+    """
     deadline = time.monotonic() + timeout
     while not done():
         _check_alive(graph)
         if time.monotonic() > deadline:
-            raise ConfigError(f'bench --live: timed out after {timeout:g} s waiting for {what}')
+            raise ConfigError(f'timed out after {timeout:g} s waiting for {what}')
         time.sleep(0.02)
 
 
@@ -319,7 +325,7 @@ def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
                       ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     frames = load_stereo_frames(bag or REPO / 'bags' / 'stereo_vga', NS)
     if not frames:
-        raise ConfigError(f'bench --live: no complete stereo frame under {NS} in {bag}')
+        raise ConfigError(f'no complete stereo frame under {NS} in {bag}')
     config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
     sgm = next(n for n in config.nodes if n.plugin == 'sgm_stereo')
     used_paths = int(sgm.parameters.get('paths', 8)) if paths is None else paths
