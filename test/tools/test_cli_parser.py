@@ -121,7 +121,8 @@ def _bench(*words: str) -> Any:
     (['soak'], {'duration': 1800.0, 'tune_every': 10.0, 'memory_log': None, 'rate': 10.0,
                 'composed': False}),
     (['live'], {'rate': 10.0, 'composed': False, 'frames': 50, 'sgm_threads': None,
-                'paths': None, 'no_opencv': False, 'bag': str(BUNDLED_BAGS / 'stereo_vga')}),
+                'paths': None, 'no_opencv': False, 'bag': str(BUNDLED_BAGS / 'stereo_vga'),
+                'watch': 'all'}),
 ])
 def test_each_bench_stage_has_its_own_options_and_defaults(words: list[str],
                                                            defaults: dict[str, Any]) -> None:
@@ -192,12 +193,13 @@ def test_bench_live_passes_its_options_on(monkeypatch: pytest.MonkeyPatch,
         return Report()
 
     monkeypatch.setattr(bench_cli, 'bench_live', fake_bench_live)
-    assert bench_cli.run(_bench('live', '--rate', '15', '--frames', '100', '--no-opencv',
-                                '--paths', '5', '--threads', '0')) == 0
+    assert bench_cli.run(_bench('live', '--watch', 'points2', '--rate', '15', '--frames',
+                                '100', '--no-opencv', '--paths', '5', '--threads', '0')) == 0
     assert calls == [{'rate': 15.0, 'count': 100, 'threads': 0, 'opencv': False,
-                      'bag': str(BUNDLED_BAGS / 'stereo_vga'), 'paths': 5,
-                      'composed': False}]
+                      'bag': str(BUNDLED_BAGS / 'stereo_vga'), 'paths': 5, 'composed': False,
+                      'watch': 'points2'}]
     assert capsys.readouterr().out == 'the report\n'
     bench_cli.run(_bench('live'))
+    assert calls[1]['watch'] == 'all'
     assert calls[1]['threads'] is None
     assert calls[1]['paths'] is None

@@ -18,7 +18,7 @@ import cv2
 import numba
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.tools.bench.live import bench_live
+from depth_nodes.tools.bench.live import WATCH, bench_live
 from depth_nodes.tools.bench.nodes import bench_cross_check, bench_point_cloud
 from depth_nodes.tools.bench.rectify import bench_rectify
 from depth_nodes.tools.bench.sgm import bench_sgm
@@ -146,12 +146,16 @@ def _live_arguments(parser: argparse.ArgumentParser) -> None:
                         'and 5, MODE_HH for 8 and 16')
     parser.add_argument('--no-opencv', action='store_true', help='skip the OpenCV graph')
     _bag_option(parser, 'stereo_vga', 'the bag whose stereo frames to publish')
+    parser.add_argument('--watch', choices=WATCH, default='all',
+                        help='subscribe to every stage\'s output (all: per-stage latency) or '
+                        'to the final output only (points2: end-to-end latency, as a robot '
+                        'that reads the point cloud only); default all')
 
 
 def _live(args: argparse.Namespace) -> str:
     return bench_live(rate=args.rate, count=args.frames, threads=args.sgm_threads,
                       opencv=not args.no_opencv, bag=args.bag, paths=args.paths,
-                      composed=args.composed).format()
+                      composed=args.composed, watch=args.watch).format()
 
 
 STAGES = {stage.name: stage for stage in (
@@ -171,7 +175,8 @@ STAGES = {stage.name: stage for stage in (
           '--tune-every s: losses, memory, parameter answers', _soak_arguments, _soak,
           in_process=False),
     Stage('live', 'the stereo pipeline as separate processes over DDS: sustained rate and '
-          'per-stage latency, beside the OpenCV graph', _live_arguments, _live,
+          'per-stage (--watch points2: end-to-end) latency, beside the OpenCV graph',
+          _live_arguments, _live,
           in_process=False),
 )}
 
