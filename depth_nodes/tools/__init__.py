@@ -1,1 +1,2 @@
-"""The `depth-nodes` command (cli.py) and its parts: bags/, live/, evaluation/, bench/."""
+"""The `depth-nodes` command (cli/, one module per command) and its parts: bags/, live/,
+evaluation/, bench/."""

@@ -20,7 +20,7 @@ from depth_nodes.ros.image import image_to_array, to_gray
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.bags.process import process_bag
-from depth_nodes.tools.bench.sgm import bench_rectify
+from depth_nodes.tools.bench.rectify import bench_rectify
 from depth_nodes.tools.evaluation.evaluate import evaluate_bag
 
 BAGS = REPO / 'bags'
@@ -250,7 +250,7 @@ def test_eval_reports_rectification_accuracy(processed: dict[str, Path]) -> None
 
 
 def test_bench_command_prints_its_figures() -> None:
-    cv2.setNumThreads(2)  # as `depth-nodes bench --threads 2` does (restored by conftest)
+    cv2.setNumThreads(2)  # as `depth-nodes bench rectify --threads 2` does (restored by conftest)
     result = bench_rectify(width=160, height=120, repeats=3)
     # the node's own `threads` parameter follows the caller's setting instead of
     # resetting OpenCV to its default of 1 thread for the baselines timed after it

@@ -3,7 +3,7 @@ minutes; the README has its figures and the command)."""
 
 from __future__ import annotations
 
-from depth_nodes.tools.bench.soak import SoakReport, _middleware_losses, timeline
+from depth_nodes.tools.bench.soak import SoakReport, middleware_losses, timeline
 
 
 def test_middleware_losses_are_outputs_minus_inputs_per_topic() -> None:
@@ -15,7 +15,7 @@ def test_middleware_losses_are_outputs_minus_inputs_per_topic() -> None:
         '/stereo/cross_check': {'input /stereo/disparity total': '95'},
         '/stereo/other': {'input /stereo/disparity total': '90'},  # a second subscriber
     }
-    assert _middleware_losses(totals) == {'/stereo/left/image_rect': 3,
+    assert middleware_losses(totals) == {'/stereo/left/image_rect': 3,
                                           '/stereo/disparity': 5}
 
 

@@ -1,4 +1,4 @@
-"""`depth-nodes bench --live`: the stereo pipeline over DDS, one process per node.
+"""`depth-nodes bench live`: the stereo pipeline over DDS, one process per node.
 
 The graph of config/stereo_pipeline.yaml (rectify x2 -> sgm_stereo -> cross_check ->
 point_cloud) runs as five processes; this process publishes 640x480 frames of the bundled
@@ -7,6 +7,11 @@ frame leaves each stage. Printed: the sustained output rate, frames lost, per-st
 latency (median and 95th percentile), each process's CPU load, and drops the nodes
 reported on /diagnostics. The same is then measured for the graph stereo_image_proc users
 run, OpenCV's StereoSGBM (MODE_HH) in the SGM node and no cross-check, on the same frames.
+
+With ``watch='points2'`` this process subscribes to the final output only, as a robot's
+consumer of the point cloud would (a node that computes an output only while something
+subscribes to it then skips what nobody reads): the report gives the end-to-end latency,
+raw frame published to points2, instead of the per-stage ones.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -62,6 +68,9 @@ OPENCV_STAGES: list[Stage] = [
     ('sgm_stereo (opencv)', (LEFT_RECT, RIGHT_RECT), (DISPARITY,)),
     ('point_cloud', (DISPARITY,), (POINTS,)),
 ]
+#: What the bench subscribes to: every stage's output, or the final one (points2) only.
+Watch = Literal['all', 'points2']
+WATCH: tuple[Watch, ...] = ('all', 'points2')
 
 
 @dataclass
@@ -112,6 +121,7 @@ class LiveBench:
     threads: int = 0
     paths: int = 8
     composed: bool = False
+    watch: Watch = 'all'
 
     def format(self) -> str:
         threads = f'{self.threads} thread(s)' if self.threads else 'every core'
@@ -119,6 +129,9 @@ class LiveBench:
                   'one process per node')
         lines = [f'live: 640x480, 128 disparities, {self.paths} paths, {layout} over DDS '
                  f'(Fast DDS, localhost), SGM node on {threads}', self.ours.format()]
+        if self.watch == 'points2':
+            lines[0] += ('; the bench subscribed to points2 only (latency: raw frame '
+                         'published -> points2)')
         met = self.ours.fps >= 0.95 * self.target_hz and self.ours.received == self.ours.sent
         lines.append(f'  target {self.target_hz:g} Hz with nothing lost: '
                      f'{"met" if met else "NOT met"}')
@@ -162,19 +175,54 @@ def _percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
 
 
+def watched(stages: list[Stage], watch: Watch) -> list[str]:
+    """The topics the bench subscribes to: every stage's outputs, or the last stage's."""
+    if watch == 'points2':
+        return list(stages[-1][2])
+    return sorted({t for _, _, outs in stages for t in outs})
+
+
+def latencies(stages: list[Stage], sent: dict[int, float],
+              arrived: dict[str, dict[int, float]],
+              timed: list[int]) -> dict[str, tuple[float, float]]:
+    """Median and 95th percentile (ms) of each stage whose topics were all watched, and end
+    to end (raw frame published -> the last stage's output), over the frames of ``timed``
+    (stamps) that arrived.
+
+    Args:
+        stages: The graph's stages, in order.
+        sent: Stamp -> time the raw frame was published (s).
+        arrived: Watched topic -> stamp -> time its message arrived (s).
+        timed: The stamps of the timed frames.
+    """
+    out = {}
+    for name, inputs, outputs in [*stages, ('end to end', ('',), stages[-1][2])]:
+        if not all(t == '' or t in arrived for t in (*inputs, *outputs)):
+            continue  # a stage between topics this bench did not subscribe to
+        values = []
+        for s in timed:
+            if not all(s in arrived[t] for t in outputs):
+                continue
+            start = max(sent[s] if t == '' else arrived[t][s] for t in inputs)
+            values.append(1e3 * (max(arrived[t][s] for t in outputs) - start))
+        if values:
+            out[name] = (statistics.median(values), _percentile(values, 0.95))
+    return out
+
+
 def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame], *,
              rate: float, count: int, warmup: int, label: str, workdir: Path,
              env: dict[str, str], threads: int | None = None,
-             paths: int | None = None, composed: bool = False) -> LiveRun:
+             paths: int | None = None, composed: bool = False,
+             watch: Watch = 'all') -> LiveRun:
     """Run ``config`` as processes, feed ``warmup`` frames one at a time, then ``count``
-    frames at ``rate`` Hz, and measure."""
-    watch = sorted({t for _, _, outs in stages for t in outs})
+    frames at ``rate`` Hz, and measure (subscribed to the outputs :func:`watched` names)."""
     context = Context()
     rclpy.init(args=[], context=context)
     node = rclpy.create_node('depth_nodes_bench_live', context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    feeder = StereoFeeder(node, NS, watch)
+    feeder = StereoFeeder(node, NS, watched(stages, watch))
     last_status: dict[str, int] = {}
     timing = threading.Event()  # set while the timed frames are in flight
     processing: dict[str, list[tuple[int, float]]] = {}  # (frames, mean ms) per period
@@ -199,7 +247,7 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
                            else {}, composed=composed)
     try:
         graph.start()
-        _wait(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
+        wait_until(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
         stamp = warm_up(feeder, frames, graph, warmup)
         time.sleep(1.5)  # a diagnostics period: the drops so far are the warm-up's
         drops_before = dict(last_status)
@@ -237,16 +285,7 @@ def run_live(config: GraphConfig, stages: list[Stage], frames: list[StereoFrame]
     done = sorted(feeder.arrived[final_topic][s] for s in timed
                   if s in feeder.arrived[final_topic])
     fps = (len(done) - 1) / (done[-1] - done[0]) if len(done) > 1 else 0.0
-    latency = {}
-    for name, inputs, outputs in [*stages, ('end to end', ('',), stages[-1][2])]:
-        values = []
-        for s in timed:
-            if not all(s in feeder.arrived[t] for t in outputs):
-                continue
-            start = max(feeder.sent[s] if t == '' else feeder.arrived[t][s] for t in inputs)
-            values.append(1e3 * (max(feeder.arrived[t][s] for t in outputs) - start))
-        if values:
-            latency[name] = (statistics.median(values), _percentile(values, 0.95))
+    latency = latencies(stages, feeder.sent, feeder.arrived, timed)
     cpu = {n: 100 * (cpu_end[n] - cpu_start.get(n, 0.0)) / wall for n in cpu_end}
     drops = {n: c - drops_before.get(n, 0) for n, c in last_status.items()}
     mean_ms = {n: sum(f * ms for f, ms in periods) / sum(f for f, _ in periods)
@@ -276,7 +315,7 @@ def warm_up(feeder: StereoFeeder, frames: list[StereoFrame], graph: GraphProcess
         if feeder.complete(stamp):
             done += 1
         elif time.monotonic() > deadline:
-            raise ConfigError(f'bench --live: no frame came out of the graph within '
+            raise ConfigError(f'no frame came out of the graph within '
                               f'{FIRST_FRAME_TIMEOUT_S:g} s')
     return stamp
 
@@ -285,41 +324,50 @@ def _check_alive(graph: GraphProcesses) -> None:
     exited = graph.exited()
     if exited:
         name, code = next(iter(exited.items()))
-        raise ConfigError(f'bench --live: node {name} exited with status {code}:\n'
+        raise ConfigError(f'node {name} exited with status {code}:\n'
                           f'{graph.log(name)[-2000:]}')
 
 
-def _wait(done: Callable[[], bool], timeout: float, graph: GraphProcesses,
-          what: str) -> None:
+def wait_until(done: Callable[[], bool], timeout: float, graph: GraphProcesses,
+               what: str) -> None:
+    """Wait until ``done()`` is true.
+
+    Raises:
+        ConfigError: A node of ``graph`` exited, or ``timeout`` s passed (``what`` says
+            what was waited for).
+    """
     deadline = time.monotonic() + timeout
     while not done():
         _check_alive(graph)
         if time.monotonic() > deadline:
-            raise ConfigError(f'bench --live: timed out after {timeout:g} s waiting for {what}')
+            raise ConfigError(f'timed out after {timeout:g} s waiting for {what}')
         time.sleep(0.02)
 
 
 def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
                threads: int | None = None, opencv: bool = True,
                bag: str | Path | None = None, paths: int | None = None,
-               composed: bool = False) -> LiveBench:
+               composed: bool = False, watch: Watch = 'all') -> LiveBench:
     """Measure the stereo pipeline (and the OpenCV graph) as separate processes, the SGM
     node of both with ``threads`` threads (0: every core; None: as the config says), ours
     with ``paths`` aggregation paths (None: as the config says) and OpenCV in the mode of
-    :func:`opencv_mode`.
+    :func:`opencv_mode`; subscribed to every stage's output or (``watch='points2'``) to
+    the point cloud only.
 
     Runs in its own ROS domain (derived from the process id, discovery on localhost) so it
     neither disturbs nor hears another graph.
     """
     if rate <= 0 or count < 2 or warmup < 1:
-        raise ConfigError('bench --live needs --rate > 0, at least 2 frames and 1 warm-up')
+        raise ConfigError('bench live needs --rate > 0, at least 2 frames and 1 warm-up')
+    if watch not in WATCH:
+        raise ConfigError(f'--watch must be one of {", ".join(WATCH)}, got {watch!r}')
     env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     os.environ.update(ROS_DOMAIN_ID=env['ROS_DOMAIN_ID'],
                       ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     frames = load_stereo_frames(bag or REPO / 'bags' / 'stereo_vga', NS)
     if not frames:
-        raise ConfigError(f'bench --live: no complete stereo frame under {NS} in {bag}')
+        raise ConfigError(f'no complete stereo frame under {NS} in {bag}')
     config = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
     sgm = next(n for n in config.nodes if n.plugin == 'sgm_stereo')
     used_paths = int(sgm.parameters.get('paths', 8)) if paths is None else paths
@@ -327,7 +375,7 @@ def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
         ours = run_live(config, OURS_STAGES, frames, rate=rate, count=count, warmup=warmup,
                         label='depth_nodes graph (census SGM + cross-check)',
                         workdir=Path(tmp) / 'ours', env=env, threads=threads, paths=paths,
-                        composed=composed)
+                        composed=composed, watch=watch)
         theirs = None
         if opencv:
             mode = opencv_mode(used_paths)
@@ -335,7 +383,7 @@ def bench_live(*, rate: float = 10.0, count: int = 50, warmup: int = 3,
                               rate=rate, count=count, warmup=warmup,
                               label=f'OpenCV graph (StereoSGBM {mode}, no cross-check)',
                               workdir=Path(tmp) / 'opencv', env=env, threads=threads,
-                              composed=composed)
+                              composed=composed, watch=watch)
     used = sgm.parameters.get('threads', 0) if threads is None else threads
     return LiveBench(ours, theirs, target_hz=rate, threads=used, paths=used_paths,
-                     composed=composed)
+                     composed=composed, watch=watch)

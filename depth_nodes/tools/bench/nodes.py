@@ -19,8 +19,22 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+
+from depth_nodes.core.camera import StereoModel
+from depth_nodes.core.cross_check import cross_check
+from depth_nodes.core.reproject import reproject_disparity
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.nodes.cross_check import CrossCheckNode
+from depth_nodes.nodes.point_cloud import PointCloudNode
+from depth_nodes.ros.camera_info import model_to_camera_info
+from depth_nodes.ros.disparity import build_disparity
+from depth_nodes.ros.image import array_to_image, to_gray
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
-from depth_nodes.tools.bench.sgm import median_ms
+from depth_nodes.tools.bench.timing import median_ms
 
 
 @dataclass
@@ -83,11 +97,6 @@ def node_on_bench(node_class: Callable[..., Any]) -> Iterator[tuple[Any, dict[st
     """A node on a context of its own, with OpenCV's threads as the caller set them (the
     node applies its ``threads`` every frame); yields the node and the dict its outputs
     land in (topic -> last message)."""
-    import cv2
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-
     context = Context()
     rclpy.init(args=[], context=context)
     try:
@@ -105,13 +114,6 @@ def node_on_bench(node_class: Callable[..., Any]) -> Iterator[tuple[Any, dict[st
 
 def bench_cross_check(repeats: int = 20) -> CrossCheckBench:
     """Time the cross-check of a 640x480 SGM result, beside SGM in the same run."""
-    from depth_nodes.core.camera import StereoModel
-    from depth_nodes.core.cross_check import cross_check
-    from depth_nodes.core.sgm import SgmMatcher, SgmParams
-    from depth_nodes.nodes.cross_check import CrossCheckNode
-    from depth_nodes.ros.disparity import build_disparity
-    from depth_nodes.ros.image import array_to_image
-
     frame = next(simulate_stereo(StereoSimConfig(width=640, height=480, n_frames=1, seed=1)))
     h, w = frame.disparity_gt.shape
     stereo = StereoModel(frame.left_camera, frame.right_camera)
@@ -141,14 +143,6 @@ def bench_cross_check(repeats: int = 20) -> CrossCheckBench:
 
 def bench_point_cloud(repeats: int = 20) -> PointCloudBench:
     """Time building a 640x480 colour cloud + depth image, beside SGM in the same run."""
-    from depth_nodes.core.camera import StereoModel
-    from depth_nodes.core.reproject import reproject_disparity
-    from depth_nodes.core.sgm import SgmMatcher, SgmParams
-    from depth_nodes.nodes.point_cloud import PointCloudNode
-    from depth_nodes.ros.camera_info import model_to_camera_info
-    from depth_nodes.ros.disparity import build_disparity
-    from depth_nodes.ros.image import array_to_image, to_gray
-
     frame = next(simulate_stereo(StereoSimConfig(width=640, height=480, n_frames=1, seed=1,
                                                  colour=True, right_cx_offset=2.0)))
     h, w = frame.disparity_gt.shape

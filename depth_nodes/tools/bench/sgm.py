@@ -1,126 +1,37 @@
-"""`depth-nodes bench`: speed figures, always beside OpenCV measured in the same run.
+"""`depth-nodes bench sgm`: the census SGM matcher beside OpenCV's StereoSGBM (MODE_HH and
+MODE_SGBM), measured in the same run on the bundled pair.
 
-Times are medians over repeated runs on the same synthetic frame, after one warm-up run;
-OpenCV uses its default thread count (``cv2.getNumThreads()``), printed with the figures.
+Times are medians over interleaved rounds after one warm-up round; besides them: the
+matcher's buffers, the peak memory of a fresh process matching one frame, the cold start,
+what bounds the path recurrence, and (``busy``) the times with cores taken by other
+processes.
 """
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import cv2
+import numba
 import numpy as np
 
-from depth_nodes.core.rectify import interpolation_flag
-from depth_nodes.sim import StereoSimConfig, simulate_stereo
+from depth_nodes.core.opencv_stereo import TUNED_HH, TUNED_SGBM, opencv_sgbm
+from depth_nodes.core.rectify import rectify_image
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.core.sgm.aggregate import new_line_buffers, p2_table, sweep_down
+from depth_nodes.ros.camera_info import camera_info_to_model
+from depth_nodes.ros.image import image_to_array
+from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.bench.timing import median_ms
 
-
-def median_ms(fns: dict[str, Callable[[], Any]], repeats: int,
-              settle: float = 0.0) -> dict[str, float]:
-    """Median wall time in ms of each function, over ``repeats`` interleaved rounds.
-
-    Every round calls each function once, so a slow spell of the machine affects all of
-    them alike and their ratios stay meaningful. One untimed warm-up round comes first.
-    ``settle`` seconds of sleep precede each timed call: OpenCV's worker threads keep
-    spinning for a moment after a call returns and would otherwise slow down whatever
-    runs next on this 2-core machine.
-    """
-    for fn in fns.values():
-        fn()
-    times: dict[str, list[float]] = {name: [] for name in fns}
-    for _ in range(repeats):
-        for name, fn in fns.items():
-            if settle:
-                time.sleep(settle)
-            start = time.perf_counter()
-            fn()
-            times[name].append(time.perf_counter() - start)
-    return {name: float(np.median(t) * 1e3) for name, t in times.items()}
-
-
-@dataclass
-class RectifyBench:
-    """Per-frame times of the rectify node and of OpenCV on the same frame."""
-
-    width: int
-    height: int
-    encoding: str
-    interpolation: str
-    repeats: int
-    threads: int
-    first_frame_ms: float
-    node_ms: float
-    remap_ms: float
-    messages_ms: float
-    undistort_ms: float
-
-    def format(self) -> str:
-        """The printed report."""
-        return '\n'.join([
-            f'rectify: {self.width}x{self.height} {self.encoding}, {self.interpolation}, '
-            f'median of {self.repeats} frames, OpenCV threads {self.threads}',
-            f'  first frame (builds the maps)                  {self.first_frame_ms:8.2f} ms',
-            f'  node, per frame (image_rect_color + image_rect) {self.node_ms:7.2f} ms',
-            f'  cv2.remap with the cached maps                 {self.remap_ms:8.2f} ms'
-            f'   node / remap     = {self.node_ms / self.remap_ms:5.2f}',
-            f'  node part: building the two Image messages     {self.messages_ms:8.2f} ms'
-            f'   (pixels copied into rclpy messages, mono conversion included)',
-            f'  cv2.undistort (no R, no P; maps every call)    {self.undistort_ms:8.2f} ms'
-            f'   node / undistort = {self.node_ms / self.undistort_ms:5.2f}',
-        ])
-
-
-def bench_rectify(*, width: int = 640, height: int = 480, repeats: int = 200,
-                  interpolation: str = 'linear') -> RectifyBench:
-    """Time the rectify node's frame callback against cv2.remap and cv2.undistort."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-    from std_msgs.msg import Header
-
-    from depth_nodes.nodes.rectify import RectifyNode
-    from depth_nodes.ros.camera_info import model_to_camera_info
-    from depth_nodes.ros.image import array_to_image
-
-    frame = next(simulate_stereo(StereoSimConfig(width=width, height=height, n_frames=1,
-                                                 colour=True, seed=21)))
-    camera = frame.left_camera
-    header = Header(frame_id=camera.frame_id)
-    image_msg = array_to_image(frame.left_raw, 'rgb8', header)
-    info_msg = model_to_camera_info(camera, header)
-    context = Context()
-    rclpy.init(args=[], context=context)
-    # the node's threads as the caller set OpenCV's (the node applies them every frame)
-    node = RectifyNode(context=context, parameter_overrides=[
-        Parameter('interpolation', value=interpolation),
-        Parameter('threads', value=cv2.getNumThreads())])
-    try:
-        published: list[str] = []
-        node.sink = lambda topic, msg: published.append(topic)  # keep no pixels
-        start = time.perf_counter()
-        node.on_frame(image_msg, info_msg)
-        first_ms = (time.perf_counter() - start) * 1e3
-        if len(published) != 2:
-            raise RuntimeError(f'rectify node dropped the benchmark frame: {dict(node.drops)}')
-        map1, map2 = node.rectifier.maps(camera)
-        flag = interpolation_flag(interpolation)
-        rect = cv2.remap(frame.left_raw, map1, map2, flag)
-        ms = median_ms({
-            'node': lambda: node.on_frame(image_msg, info_msg),
-            'remap': lambda: cv2.remap(frame.left_raw, map1, map2, flag),
-            'messages': lambda: (
-                array_to_image(rect, 'rgb8', header),
-                array_to_image(cv2.cvtColor(rect, cv2.COLOR_RGB2GRAY), 'mono8', header)),
-            'undistort': lambda: cv2.undistort(frame.left_raw, camera.K, camera.D),
-        }, repeats)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown(context=context)
-    return RectifyBench(width, height, 'rgb8', interpolation, repeats, cv2.getNumThreads(),
-                        first_ms, ms['node'], ms['remap'], ms['messages'], ms['undistort'])
+#: The bundled pair the matcher is timed on.
+BUNDLED_PAIR = Path(__file__).resolve().parents[3] / 'bags' / 'stereo_vga'
 
 
 @dataclass
@@ -212,16 +123,8 @@ class SgmBench:
 
 def _bundled_pair() -> tuple[Any, Any]:
     """The first rectified pair of bags/stereo_vga (rectified with its CameraInfo)."""
-    from pathlib import Path
-
-    from depth_nodes.core.rectify import rectify_image
-    from depth_nodes.ros.camera_info import camera_info_to_model
-    from depth_nodes.ros.image import image_to_array
-    from depth_nodes.tools.bags.io import BagReader
-
-    bag = Path(__file__).resolve().parents[3] / 'bags' / 'stereo_vga'
     first: dict[str, Any] = {}
-    with BagReader(bag) as reader:
+    with BagReader(BUNDLED_PAIR) as reader:
         for m in reader.messages([f'/stereo/{s}/{k}' for s in ('left', 'right')
                                   for k in ('image_raw', 'camera_info')]):
             first.setdefault(m.topic, m.deserialize())
@@ -250,10 +153,6 @@ print(json.dumps({"import_s": imported - start, "first_frame_s": t1 - t0,
 
 def cold_start_sgm() -> dict[str, float]:
     """Import and first-frame times of a fresh interpreter (numba cache already warm)."""
-    import json
-    import subprocess
-    import sys
-
     for _ in range(2):  # the first run fills the cache if it is empty; the second is timed
         out = subprocess.run([sys.executable, '-c', _COLD_START], capture_output=True,
                              text=True, check=True).stdout
@@ -284,10 +183,6 @@ def peak_memory(width: int, height: int, disparities: int, paths: int,
                 threads: int) -> dict[str, float]:
     """Peak RSS in MB of a fresh interpreter matching one frame, per method (and of one
     that loads the same modules and pair but matches nothing: ``idle``)."""
-    import json
-    import subprocess
-    import sys
-
     peaks = {}
     for method in ('idle', 'ours', 'hh', 'sgbm'):
         out = subprocess.run([sys.executable, '-c', _PEAK, method, str(width), str(height),
@@ -311,9 +206,6 @@ def bench_pair(width: int = 640, height: int = 480) -> tuple[Any, Any]:
 def busy_loops(count: int) -> list[Any]:
     """Start ``count`` processes that each keep a core busy (a plain loop), as other work
     on a robot's computer would; the caller terminates them."""
-    import subprocess
-    import sys
-
     return [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
             for _ in range(count)]
 
@@ -325,10 +217,6 @@ def kernel_limits(width: int = 640, height: int = 480,
     number of rows swept from one 8-row band again and again (3.5 MB with its path rows at
     640x480x128: in the caches, not DRAM), and a plain memory copy for the bandwidth the
     machine offers one thread."""
-    import numba
-
-    from depth_nodes.core.sgm.aggregate import new_line_buffers, p2_table, sweep_down
-
     rng = np.random.default_rng(0)
     h, w, n = height, width, disparities
     cost = rng.integers(0, 60, (h, w, n), dtype=np.uint8)
@@ -367,11 +255,6 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
               cold_start: bool = True) -> SgmBench:
     """Time census SGM against OpenCV MODE_HH and MODE_SGBM on the same pair; with
     ``busy``, again with that many cores kept busy by other processes."""
-    import numba
-
-    from depth_nodes.core.opencv_stereo import TUNED_HH, TUNED_SGBM, opencv_sgbm
-    from depth_nodes.core.sgm import SgmMatcher, SgmParams
-
     w, h = size
     left, right = bench_pair(w, h)
     threads = numba.get_num_threads()

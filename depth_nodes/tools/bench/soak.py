@@ -46,7 +46,7 @@ from depth_nodes.tools.bench.live import (
     NS,
     POINTS,
     REPO,
-    _wait,
+    wait_until,
     warm_up,
 )
 from depth_nodes.tools.live.processes import GraphProcesses, StereoFeeder, load_stereo_frames
@@ -175,7 +175,7 @@ def soak(*, duration: float = 1800.0, rate: float = 10.0, tune_every: float = 10
         graph = GraphProcesses(config, Path(tmp), env=env, composed=composed)
         try:
             graph.start()
-            _wait(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
+            wait_until(feeder.graph_ready, FIRST_FRAME_TIMEOUT_S, graph, 'the graph to connect')
             stamp = warm_up(feeder, frames, graph, 3)
             warm = len(feeder.arrived[POINTS])
             start = time.monotonic()
@@ -215,7 +215,7 @@ def soak(*, duration: float = 1800.0, rate: float = 10.0, tune_every: float = 10
     report.drops = {name: {k[len('drops '):]: int(v) for k, v in values.items()
                            if k.startswith('drops ') and k != 'drops total'}
                     for name, values in totals.items()}
-    report.middleware_lost = _middleware_losses(totals)
+    report.middleware_lost = middleware_losses(totals)
     return report
 
 
@@ -234,7 +234,7 @@ def _tune(client: object, value: float, report: SoakReport) -> None:
     report.answers_ms.append(1e3 * (time.monotonic() - start))
 
 
-def _middleware_losses(totals: dict[str, dict[str, str]]) -> dict[str, int]:
+def middleware_losses(totals: dict[str, dict[str, str]]) -> dict[str, int]:
     """Per topic: the publishing node's output total minus each subscribing node's input
     total (messages that left one node and never reached the next)."""
     published: dict[str, int] = {}

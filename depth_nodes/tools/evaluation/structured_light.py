@@ -1,4 +1,5 @@
-"""Accuracy and speed figures of the structured-light decoder, beside OpenCV's GrayCodePattern.
+"""`depth-nodes eval-sl`: accuracy of the structured-light decoder, beside OpenCV's
+GrayCodePattern (`bench structured_light`, in tools/bench, times it).
 
 For every sequence of a structured-light bag, each method decodes the same frames:
 
@@ -38,12 +39,10 @@ from depth_nodes.core.structured_light import (
     ProjectorGeometry,
     SpeckleMatcher,
     camera_rays,
-    shift_range,
     speckle_depth,
     triangulate_columns,
 )
 from depth_nodes.core.structured_light.reconstruct import reconstruct
-from depth_nodes.errors import BagError
 from depth_nodes.tools.bags.structured_light import read_structured_light_bag
 
 F32 = NDArray[np.float32]
@@ -241,129 +240,3 @@ def _mean(name: str, scores: list[SLScores]) -> SLScores:
         vals = [getattr(s, key) for s in scores if getattr(s, key) is not None]
         setattr(out, key, float(np.mean(vals)) if vals else None)
     return out
-
-
-@dataclass
-class SLBench:
-    """Per-sequence decode times at the bag's resolution (medians)."""
-
-    size: tuple[int, int]
-    frames: int
-    repeats: int
-    times_ms: dict[str, float]
-    notes: dict[str, str] = field(default_factory=dict)
-
-    def format(self) -> str:
-        """The printed report."""
-        lines = [f'structured light: {self.size[0]}x{self.size[1]}, sequences of '
-                 f'{self.frames} frames, median of {self.repeats} runs, OpenCV threads '
-                 f'{cv2.getNumThreads()}']
-        for name, ms in self.times_ms.items():
-            rate = f'  {1000 / ms:6.1f} frames/s' if name.startswith('speckle') else ''
-            lines.append(f'  {name:<58}{ms:9.1f} ms{rate}')
-        for name, note in self.notes.items():
-            lines.append(f'  {name:<58}{note}')
-        return '\n'.join(lines)
-
-
-def bench_structured_light(path: str | Path, *, repeats: int = 10) -> SLBench:
-    """Time decoding one sequence of the bag: core functions, the whole node callback path
-    (messages in, depth / points2 / confidence out), speckle, and OpenCV's GrayCodePattern
-    (one run: its per-pixel ``getProjPixel`` is slow).
-
-    Raises:
-        BagError: As :func:`read_structured_light_bag`.
-    """
-    from depth_nodes.tools.bench.sgm import median_ms
-
-    bag = read_structured_light_bag(path)
-    if not bag.sequences:
-        raise BagError(f'{path}: no complete sequence to time')
-    cfg, seq = bag.config, bag.sequences[0]
-    ps = cfg.pattern_set
-    gray = PatternSet('gray', ps.width, ps.height, ps.axes)
-    geometry = ProjectorGeometry.from_models(bag.camera, bag.projector)
-    rays = camera_rays(bag.camera)
-    fns: dict[str, Any] = {
-        f'{ps.mode} decode + triangulate (core, {ps.count} frames)':
-            lambda: reconstruct(seq.images, ps, geometry, rays=rays),
-        f'gray decode + triangulate (core, {gray.count} frames)':
-            lambda: reconstruct(seq.images[:gray.count], gray, geometry, rays=rays),
-    }
-    node_fn, close = _node_runner(bag, seq)
-    fns['node: messages in -> depth, points2, confidence out'] = node_fn
-    if bag.speckle and bag.reference is not None:
-        ref = bag.reference
-        matcher = SpeckleMatcher()
-        lo, hi = shift_range(bag.camera.K[0, 0], float(geometry.centre[0]),
-                             cfg.reference_depth, *SPECKLE_DEPTH_RANGE)
-        fns[f'speckle (core, one image, window {SPECKLE_WINDOW}, {hi - lo + 1} shifts)'] = \
-            lambda: speckle_depth(
-                bag.speckle[0], ref, focal=bag.camera.K[0, 0],
-                baseline=float(geometry.centre[0]), reference_depth=cfg.reference_depth,
-                depth_min=SPECKLE_DEPTH_RANGE[0], depth_max=SPECKLE_DEPTH_RANGE[1],
-                window=SPECKLE_WINDOW, matcher=matcher)
-    try:
-        times = median_ms(fns, repeats)
-    finally:
-        close()
-    out = SLBench((bag.camera.width, bag.camera.height), ps.count, repeats, times)
-    name = f'opencv GrayCodePattern.getProjPixel ({gray.count} frames, one run)'
-    if opencv_available():
-        start = time.perf_counter()
-        opencv_gray_columns(seq.images[:gray.count], ps.width)
-        out.times_ms[name] = (time.perf_counter() - start) * 1e3
-    else:
-        out.notes[name] = 'unavailable: cv2.structured_light needs the opencv-contrib wheel'
-    return out
-
-
-def _node_runner(bag: Any, seq: Any) -> tuple[Any, Any]:
-    """A function feeding one sequence through a StructuredLightNode, and its cleanup."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
-
-    from depth_nodes.nodes.structured_light import StructuredLightNode
-    from depth_nodes.ros.camera_info import model_to_camera_info
-    from depth_nodes.ros.image import array_to_image
-    from depth_nodes.tools.bags.structured_light import _header
-
-    cfg = bag.config
-    context = Context()
-    rclpy.init(args=[], context=context)
-    node = StructuredLightNode(context=context, parameter_overrides=[
-        Parameter('mode', value=cfg.mode), Parameter('axes', value=cfg.axes),
-        Parameter('phase_steps', value=cfg.steps),
-        Parameter('phase_period', value=float(cfg.period))])
-    published: list[str] = []
-    node.sink = lambda topic, msg: published.append(topic)
-    cb = {spec.topic: spec.callback for spec in node.inputs}
-    node.on_projector_info(model_to_camera_info(bag.projector))
-    msgs = [(array_to_image(image, 'mono8', _header(0, bag.camera.frame_id)),
-             model_to_camera_info(bag.camera, _header(0, bag.camera.frame_id)))
-            for image in seq.images]
-    topics = {name: _topic(cb, name) for name in ('image', 'camera_info', 'pattern')}
-    runs = [0]
-
-    def run() -> None:  # fresh stamps and sequence number every run
-        runs[0] += 1
-        for k, (image, info) in enumerate(msgs):
-            stamp = (runs[0] * 10**9 + k) * 1000
-            for header in (image.header, info.header):
-                header.stamp.sec, header.stamp.nanosec = divmod(stamp, 10**9)
-            cb[topics['image']](image)
-            cb[topics['camera_info']](info)
-            cb[topics['pattern']](_header(stamp, f'{runs[0]}:{k}/{len(msgs)}'))
-        if len(published) != 3 * runs[0]:
-            raise RuntimeError(f'the node dropped the benchmark sequence: {dict(node.drops)}')
-
-    def close() -> None:
-        node.destroy_node()
-        rclpy.shutdown(context=context)
-
-    return run, close
-
-
-def _topic(cb: dict[str, Any], name: str) -> str:
-    return next(t for t in cb if t.rsplit('/', 1)[-1] == name)

@@ -1,5 +1,5 @@
-"""`depth-nodes eval-tof` and `bench tof`: the tof node's output against the simulator's
-ground truth, and its speed.
+"""`depth-nodes eval-tof`: the tof node's output against the simulator's ground truth
+(`bench tof`, in tools/bench, times the node).
 
 Scores, per frame of a processed ToF bag (``depth-nodes process bags/tof_vga OUT --config
 config/tof_pipeline.yaml``), of the published depth (only pixels above the confidence
@@ -19,9 +19,6 @@ threshold carry one):
 
 from __future__ import annotations
 
-import contextlib
-import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -149,97 +146,3 @@ def evaluate_tof_bag(path: str | Path, *, depth_topic: str = f'{NAMESPACE}/depth
         raise BagError(f'{path}: no {depth_topic} messages (run depth-nodes process with '
                        'config/tof_pipeline.yaml first)')
     return ToFReport(str(path), frames, tuple(config.frequencies_mhz))
-
-
-@dataclass
-class ToFBench:
-    """Per-frame times of the tof node and of its core decoding, 640x480."""
-
-    width: int
-    height: int
-    planes: int
-    threads: int
-    repeats: int
-    node_ms: float
-    core_ms: float
-
-    def format(self) -> str:
-        """The report as printed."""
-        return '\n'.join([
-            f'tof: {self.width}x{self.height}, {self.planes} correlation planes, '
-            f'{self.threads} thread(s), median of {self.repeats} frames',
-            f'  node, per frame (decode, rectify, publish depth, amplitude, confidence, '
-            f'points)  {self.node_ms:7.1f} ms  {1000 / self.node_ms:6.1f} frames/s',
-            f'  core decoding alone (tof.decode_tof)                                     '
-            f'{self.core_ms:7.1f} ms  {1000 / self.core_ms:6.1f} frames/s',
-        ])
-
-
-@contextlib.contextmanager
-def _node() -> Iterator[Any]:
-    import rclpy
-    from rclpy.context import Context
-
-    from depth_nodes.nodes.tof import ToFNode
-
-    context = Context()
-    rclpy.init(args=[], context=context)
-    node = ToFNode(context=context)
-    node.sink = lambda topic, msg: None
-    try:
-        yield node
-    finally:
-        node.destroy_node()
-        rclpy.shutdown(context=context)
-
-
-def bench_tof(path: str | Path, *, repeats: int = 20, threads: int = 2) -> ToFBench:
-    """Time the node's frame callback and the core decoding on the first frame of a ToF bag.
-
-    Raises:
-        BagError: Not a ToF bag.
-    """
-    from depth_nodes.core.tof import ToFDecoder, ToFParams
-    from depth_nodes.ros.camera_info import camera_info_to_model
-
-    raw, info_topic = f'{NAMESPACE}/correlation/image_raw', f'{NAMESPACE}/camera_info'
-    config, found = read_topics(path, [raw, info_topic])
-    if not found[raw]:
-        raise BagError(f'{path}: no {raw} messages')
-    stamp = min(found[raw])
-    image, info = found[raw][stamp], found[info_topic][stamp]
-    camera = camera_info_to_model(info)
-    samples = image_to_array(image).reshape(-1, camera.height, camera.width)
-    decoder = ToFDecoder()
-    params = ToFParams(phase_steps=config.phase_steps)
-    decoder.decode(samples, camera, config.frequencies_mhz, params)  # compile, maps
-    core = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        decoder.decode(samples, camera, config.frequencies_mhz, params)
-        core.append(time.perf_counter() - start)
-    from rclpy.parameter import Parameter
-    from std_msgs.msg import Header
-
-    from depth_nodes.ros.camera_info import model_to_camera_info
-    from depth_nodes.ros.image import array_to_image
-
-    header = Header(frame_id=camera.frame_id)
-    header.stamp.sec, header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-    node_times = []
-    with _node() as node:
-        node.set_parameters([Parameter('modulation_frequencies',
-                                       value=list(config.frequencies_mhz)),
-                             Parameter('phase_steps', value=config.phase_steps),
-                             Parameter('threads', value=threads)])
-        msg = array_to_image(image_to_array(image), image.encoding, header)
-        info_msg = model_to_camera_info(camera, header)
-        node.on_frame(msg, info_msg)
-        for _ in range(repeats):
-            start = time.perf_counter()
-            node.on_frame(msg, info_msg)
-            node_times.append(time.perf_counter() - start)
-        if node.drops:
-            raise BagError(f'{path}: the tof node dropped the frame: {dict(node.drops)}')
-    return ToFBench(camera.width, camera.height, samples.shape[0], threads, repeats,
-                    float(np.median(node_times) * 1000), float(np.median(core) * 1000))

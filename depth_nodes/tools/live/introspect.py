@@ -24,6 +24,7 @@ from typing import Any, TextIO
 
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -32,6 +33,8 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import try_shutdown
 
 from depth_nodes.errors import ConfigError, DepthNodesError
+from depth_nodes.ros.disparity import read_disparity
+from depth_nodes.ros.image import image_to_array
 from depth_nodes.tools.bags.io import message_class
 from depth_nodes.tools.signals import stop_requested
 
@@ -181,16 +184,12 @@ def summary(msg: Any) -> str | None:
     name = type(msg).__name__
     try:
         if name == 'Image':
-            from depth_nodes.ros.image import image_to_array
-
             pixels = image_to_array(msg)
             return (f'Image {_stamp(msg)}{msg.width}x{msg.height} {msg.encoding} '
                     f'{len(msg.data)} bytes: {_stats(pixels)}')
         if name == 'CompressedImage':
             return f'CompressedImage {_stamp(msg)}{msg.format!r} {len(msg.data)} bytes'
         if name == 'DisparityImage':
-            from depth_nodes.ros.disparity import read_disparity
-
             frame = read_disparity(msg)
             return (f'DisparityImage {_stamp(msg)}{msg.image.width}x{msg.image.height} '
                     f'f {msg.f:.6g} t {msg.t:.6g} d {msg.min_disparity:g}..'
@@ -384,8 +383,6 @@ def diagnostics_view(*, period: float = 2.0, once: bool = False, timeout: float 
                      clear: Callable[[], None] | None = None) -> dict[str, Any]:
     """Print :func:`diag_table` of ``/diagnostics`` every ``period`` s until a signal
     (``once``: the first table that has every node seen so far, after ``period`` s)."""
-    from diagnostic_msgs.msg import DiagnosticArray
-
     if not period > 0:
         raise ConfigError(f'--period must be positive, got {period:g}')
     statuses: dict[str, Any] = {}

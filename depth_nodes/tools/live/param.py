@@ -26,6 +26,14 @@ from rclpy.validate_namespace import validate_namespace
 from rclpy.validate_node_name import validate_node_name
 
 from depth_nodes.errors import ConfigError
+from depth_nodes.tools.live.introspect import (
+    DISCOVERY_S,
+    STABLE_S,
+    graph_node,
+    settle,
+    unnamed_endpoints,
+    visible_nodes,
+)
 
 #: Seconds to wait for the node's services (and for each answer) unless told otherwise.
 DEFAULT_TIMEOUT = 10.0
@@ -185,13 +193,6 @@ class ParameterClient:
         Raises:
             ConfigError: They did not appear; names the nodes that are visible.
         """
-        from depth_nodes.tools.live.introspect import (
-            DISCOVERY_S,
-            STABLE_S,
-            unnamed_endpoints,
-            visible_nodes,
-        )
-
         start = time.monotonic()
         deadline = start + self._timeout
         seen, stable_since = visible_nodes(self._node), start
@@ -251,8 +252,6 @@ def connect(node: str, verbs: tuple[str, ...], *,
     target = full_node_name(node)
     if not timeout > 0:
         raise ConfigError(f'--timeout must be positive, got {timeout:g}')
-    from depth_nodes.tools.live.introspect import graph_node
-
     with graph_node('param') as (local, executor):
         client = ParameterClient(local, executor, target, timeout)
         client.wait(verbs)
@@ -366,8 +365,6 @@ def list_all_parameters(*, timeout: float = DEFAULT_TIMEOUT) -> dict[str, list[s
     """Every visible node's parameter names (``ros2 param list`` without a node): none for
     a node without parameter services, None for one that did not answer within
     ``timeout`` s (gone, or not spinning)."""
-    from depth_nodes.tools.live.introspect import DISCOVERY_S, graph_node, settle, visible_nodes
-
     with graph_node('param_list') as (node, executor):
         settle(node, executor, DISCOVERY_S)
         # ask every node at once: one that never answers (a busy `play`) costs the

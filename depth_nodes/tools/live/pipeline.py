@@ -12,7 +12,7 @@ Why not one multi-threaded executor for all: rclpy's MultiThreadedExecutor keeps
 for a subscription whose data is ready while its node's (mutually exclusive) callback is
 still running on a worker, so its main thread spun at 75 - 81 % of a core holding the GIL,
 and at 5 Hz the composed graph delivered 4 of 100 frames that five processes all delivered
-(`depth-nodes bench --live --composed`). A node's own executor only waits for its node, and
+(`depth-nodes bench live --composed`). A node's own executor only waits for its node, and
 sleeps while that node works.
 """
 

@@ -4,7 +4,7 @@
 module with ``--ros-args``, name, namespace, remappings and a generated ``--params-file``),
 exactly what the launch files do on a full ROS install. :class:`StereoFeeder` publishes
 stereo frames into such a graph and notes when each watched output of every frame arrives.
-``bench --live`` and the live-graph tests are built on both.
+``bench live`` and the live-graph tests are built on both.
 """
 
 from __future__ import annotations
@@ -23,11 +23,13 @@ import yaml
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import GraphConfig, NodeSpec, parameters_for
 from depth_nodes.nodes import NODE_PLUGINS
+from depth_nodes.tools.bags.io import BagReader
 
 #: Seconds a node process gets to exit after SIGINT before it is killed.
 STOP_TIMEOUT_S = 15.0
@@ -240,9 +242,6 @@ class StereoFeeder:
 
 def _watched_type(topic: str) -> type:
     """Message class of a watched output, by the stereo pipeline's topic names."""
-    from sensor_msgs.msg import PointCloud2
-    from stereo_msgs.msg import DisparityImage
-
     leaf = topic.rsplit('/', 1)[-1]
     watched: type = Image
     if leaf.startswith('disparity'):
@@ -254,8 +253,6 @@ def _watched_type(topic: str) -> type:
 
 def load_stereo_frames(bag: str | Path, namespace: str = '/stereo') -> list[StereoFrame]:
     """The raw stereo frames (left image, left info, right image, right info) of a bag."""
-    from depth_nodes.tools.bags.io import BagReader
-
     ns = namespace.rstrip('/')
     topics = [f'{ns}/left/image_raw', f'{ns}/left/camera_info', f'{ns}/right/image_raw',
               f'{ns}/right/camera_info']

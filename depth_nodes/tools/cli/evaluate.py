@@ -1,0 +1,59 @@
+"""`depth-nodes eval`: accuracy of a processed bag against its ground truth."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+from pathlib import Path
+
+from depth_nodes.errors import BagError, DepthNodesError
+from depth_nodes.tools.evaluation.evaluate import evaluate_bag, has_ground_truth
+from depth_nodes.tools.evaluation.previews import bag_previews
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `eval`."""
+    parser.add_argument('bag')
+    parser.add_argument('--threshold', type=float, default=2.0, help='N of bad-N (default 2)')
+    parser.add_argument('--previews', metavar='DIR',
+                        help='write PNG previews into DIR: every disparity, depth and '
+                        'confidence colour-mapped beside the left image, with a colour bar '
+                        '(also for a bag without ground truth, which is then only drawn)')
+    parser.add_argument('--preview-frames', type=int, default=10, metavar='N',
+                        help='previews of the first N frames (default 10)')
+    parser.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
+    parser.add_argument('--grid', action='store_true',
+                        help='also print every setting of the 18-setting OpenCV grid')
+
+
+def run(args: argparse.Namespace) -> int:
+    """Score the bag (or only draw it); a previews folder made here goes on failure."""
+    if args.previews and not Path(args.previews).exists():  # made here: gone on failure
+        try:
+            return _evaluate(args)
+        except DepthNodesError:
+            with contextlib.suppress(OSError):
+                Path(args.previews).rmdir()  # only when it is still empty
+            raise
+    return _evaluate(args)
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    if not has_ground_truth(args.bag):
+        if not args.previews:
+            raise BagError(f'{args.bag} has no ground truth (…/left/disparity_gt) to score '
+                           'against; --previews DIR draws its disparity, depth and '
+                           'confidence instead')
+        written = bag_previews(args.bag, args.previews, max_frames=args.preview_frames)
+        print(f'{args.bag}: no ground truth, nothing scored; {len(written)} previews '
+              f'written to {args.previews}')
+        return 0
+    report = evaluate_bag(args.bag, threshold=args.threshold, baselines=not args.no_baseline,
+                          previews=args.previews, preview_frames=args.preview_frames)
+    if not report.rows:
+        raise BagError(f'nothing to score in {args.bag}: no disparity besides the ground '
+                       'truth, and --no-baseline')
+    print(report.format(grid=args.grid))
+    if args.previews:
+        print(f'previews written to {args.previews}')
+    return 0

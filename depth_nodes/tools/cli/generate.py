@@ -1,0 +1,134 @@
+"""`depth-nodes generate`: synthetic bags with ground truth (stereo, structured light, ToF),
+and the hostile-input campaign."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+from depth_nodes.errors import ConfigError
+from depth_nodes.sim import StereoSimConfig
+from depth_nodes.sim.tof import ToFSimConfig
+from depth_nodes.tools import signals
+from depth_nodes.tools.bags import structured_light as sl
+from depth_nodes.tools.bags import tof
+from depth_nodes.tools.bags.generate import PRESETS, write_stereo_bag
+from depth_nodes.tools.cli.options import BUNDLED_BAGS
+from depth_nodes.tools.evaluation.campaign import write_bad_input_bag
+
+C = TypeVar('C')
+
+
+@dataclass(frozen=True)
+class PresetKind(Generic[C]):
+    """Presets of one kind: how --seed and --frames apply to one, how its bag is written
+    (returns the messages written) and what the printed line says of it."""
+
+    presets: Mapping[str, C]
+    with_seed: Callable[[C, int], C]
+    with_frames: Callable[[C, int], C]
+    write: Callable[[Path, C, bool], int]
+    describe: Callable[[C], str]
+
+    def generate(self, name: str, path: Path, args: argparse.Namespace) -> str:
+        """Write preset ``name`` at ``path`` with the options applied; the printed line."""
+        config = self.presets[name]
+        if args.seed is not None:
+            config = self.with_seed(config, args.seed)
+        if args.frames is not None:
+            config = self.with_frames(config, args.frames)
+        count = self.write(path, config, args.force)
+        size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
+        return f'{path}: {name}, {self.describe(config)}, {count} messages, {size:.1f} MB'
+
+
+def _frames(count: int) -> str:
+    return f'{count} frames' if not signals.stop_requested() else 'frames up to the signal'
+
+
+def _frame_done(count: int, index: int) -> None:
+    """Progress of `generate` on stderr."""
+    print(f'  frame {index + 1}/{count}', file=sys.stderr)
+
+
+def _write_stereo(path: Path, config: StereoSimConfig, overwrite: bool) -> int:
+    return write_stereo_bag(path, config, overwrite=overwrite,
+                            on_frame=functools.partial(_frame_done, config.n_frames))
+
+
+STEREO = PresetKind[StereoSimConfig](
+    PRESETS,
+    with_seed=lambda c, seed: dataclasses.replace(c, seed=seed),
+    with_frames=lambda c, frames: dataclasses.replace(c, n_frames=frames),
+    write=_write_stereo,
+    describe=lambda c: f'{c.width}x{c.height}, {_frames(c.n_frames)}')
+STRUCTURED_LIGHT = PresetKind[sl.StructuredLightBagConfig](
+    sl.PRESETS,
+    with_seed=lambda c, seed: dataclasses.replace(c, sim=dataclasses.replace(c.sim, seed=seed)),
+    with_frames=lambda c, frames: dataclasses.replace(c, sequences=frames),
+    write=lambda path, c, overwrite: sl.write_structured_light_bag(path, c, overwrite=overwrite),
+    describe=lambda c: (f'{c.sim.width}x{c.sim.height}, {c.sequences} sequence(s) of '
+                        f'{c.pattern_set.count} frames + {c.speckle_frames} speckle'))
+TOF = PresetKind[ToFSimConfig](
+    tof.PRESETS,
+    with_seed=lambda c, seed: dataclasses.replace(c, seed=seed),
+    with_frames=lambda c, frames: dataclasses.replace(c, n_frames=frames),
+    write=lambda path, c, overwrite: tof.write_tof_bag(path, c, overwrite=overwrite),
+    describe=lambda c: (f'{c.width}x{c.height}, {_frames(c.n_frames)} of '
+                        f'{len(c.frequencies_mhz)} x {c.phase_steps} correlation planes'))
+#: Every preset by name, in the order `--preset all` writes them.
+KINDS: dict[str, PresetKind[Any]] = {
+    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF) for name in kind.presets}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `generate`."""
+    parser.add_argument('out', help='bag folder to create (a parent folder with --preset all)')
+    parser.add_argument('--preset', default='stereo_vga',
+                        help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye, '
+                        'structured_light_vga, tof_vga, all (these five), or bad_inputs (the '
+                        'hostile campaign, from --source)')
+    parser.add_argument('--source', help='bad_inputs: stereo bag whose raw frames to use '
+                        '(default: the bundled stereo_vga)')
+    parser.add_argument('--seed', type=int, help='override the preset seed')
+    parser.add_argument('--frames', type=int, help='override the number of frames')
+    parser.add_argument('--force', action='store_true', help='replace existing bags')
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the bags of --preset (a signal stops after the frame being written).
+
+    Raises:
+        ConfigError: Unknown preset, or an option the simulator refuses.
+    """
+    with signals.graceful():
+        if args.preset == 'bad_inputs':
+            return _bad_inputs(args)
+        if args.preset != 'all' and args.preset not in KINDS:
+            raise ConfigError(f'unknown preset {args.preset!r} (presets: {", ".join(KINDS)}, '
+                              'bad_inputs, all)')
+        names = list(KINDS) if args.preset == 'all' else [args.preset]
+        out = Path(args.out)
+        for name in names:
+            path = out / name if args.preset == 'all' else out
+            print(KINDS[name].generate(name, path, args))
+            if signals.stop_requested():
+                break
+        if signals.stop_requested():
+            print('depth-nodes generate: interrupted; the last bag holds the frames written '
+                  'before the signal (its metadata says how many)', file=sys.stderr)
+    return 0
+
+
+def _bad_inputs(args: argparse.Namespace) -> int:
+    source = args.source or BUNDLED_BAGS / 'stereo_vga'
+    campaign = write_bad_input_bag(args.out, source, overwrite=args.force)
+    print(f'{args.out}: bad_inputs from {source}: {len(campaign.good)} good frames, '
+          f'{len(campaign.cases)} hostile cases')
+    return 0
