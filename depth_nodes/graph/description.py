@@ -3,7 +3,7 @@
 One YAML format (:mod:`~depth_nodes.graph.schema`) describes a graph for every way the
 package runs one: the offline bag harness (``depth-nodes process``), the composed live
 pipeline (``depth-nodes pipeline``, :mod:`depth_nodes.tools.live.pipeline`), one process
-per node (the launch files, :mod:`depth_nodes.graph.launching`; ``bench --live``). This
+per node (the launch files, :mod:`depth_nodes.graph.launching`; ``bench live``). This
 module gathers the public names of the four modules that do the work, which is where
 callers import them from:
 

@@ -13,14 +13,12 @@ reasons.
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 from sensor_msgs.msg import Image
 
 from depth_nodes.nodes.depth_common import DepthImageNode, depth_transport
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.ros.node import run_node
 from depth_nodes.ros.params import NodeParameters
 
 PARAMETERS = [depth_transport('image_transport')]
@@ -43,7 +41,3 @@ class ConvertMetricNode(DepthImageNode):
         read = self.read_depth(msg, 'image_raw')
         if read is not None:
             self.pub_image.publish(array_to_image(read[0], '32FC1', msg.header))
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.convert_metric` (tools/live)
-    sys.exit(run_node(ConvertMetricNode))

@@ -34,7 +34,6 @@ DisparityImage not 32FC1), ``unsupported_encoding`` (cost_ratio not 32FC1),
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
@@ -47,7 +46,7 @@ from depth_nodes.core.cross_check import CrossCheckParams, cross_check
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import THREADS, NodeParameters, specs_from, synchroniser_specs
 from depth_nodes.ros.workers import use_threads
 
@@ -133,7 +132,3 @@ class CrossCheckNode(DepthNode):
         if want_confidence:
             self.pub_confidence.publish(array_to_image(
                 np.ascontiguousarray(result.confidence, np.float32), '32FC1', header))
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.cross_check` (tools/live)
-    sys.exit(run_node(CrossCheckNode))

@@ -23,7 +23,6 @@ baseline), ``sync_*``.
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Mapping
 from typing import Any
 
@@ -34,7 +33,6 @@ from stereo_msgs.msg import DisparityImage
 from depth_nodes.core.depth_image import depth_to_disparity
 from depth_nodes.nodes.depth_common import QUEUE_SIZE, DepthImageNode, depth_transport
 from depth_nodes.ros.disparity import build_disparity
-from depth_nodes.ros.node import run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 
 #: The nearest depth taken when ``min_range`` is 0, metres (16UC1's smallest).
@@ -103,7 +101,3 @@ class DepthDisparityNode(DepthImageNode):
             focal=focal, baseline=baseline,
             min_disparity=focal * baseline / values['max_range'],
             max_disparity=focal * baseline / nearest, delta_d=values['delta_d']))
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.depth_disparity` (tools/live)
-    sys.exit(run_node(DepthDisparityNode))

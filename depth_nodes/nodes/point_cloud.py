@@ -34,7 +34,6 @@ confidence or camera_info), ``uncalibrated``, ``bad_calibration``, ``sync_*``.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
@@ -52,7 +51,7 @@ from depth_nodes.core.reproject import (
 from depth_nodes.errors import ArgumentError, MessageError
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import array_to_image, to_rgb8
-from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import (
     IMAGE_TRANSPORT,
     THREADS,
@@ -223,7 +222,3 @@ class PointCloudNode(DepthNode):
                 extra_fields=extra))
         if want_depth:
             self.pub_depth.publish(_depth_image(result.depth, values['depth_encoding'], header))
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.point_cloud` (tools/live)
-    sys.exit(run_node(PointCloudNode))

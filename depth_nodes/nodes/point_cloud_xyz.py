@@ -20,7 +20,6 @@ reasons (``malformed_image``, ``decode_failed``...), ``uncalibrated``,
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 import numpy as np
@@ -33,7 +32,6 @@ from depth_nodes.nodes.depth_common import (
     DepthImageNode,
     depth_transport,
 )
-from depth_nodes.ros.node import run_node
 from depth_nodes.ros.params import NodeParameters
 from depth_nodes.ros.pointcloud import build_pointcloud
 
@@ -73,7 +71,3 @@ class PointCloudXyzNode(DepthImageNode):
         depth = fill_unknown(depth, self.params.values['invalid_depth'])
         self.pub_points.publish(build_pointcloud(depth_to_points(depth, camera),
                                                  depth_msg.header))
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.point_cloud_xyz` (tools/live)
-    sys.exit(run_node(PointCloudXyzNode))

@@ -22,7 +22,6 @@ reasons, ``uncalibrated``, ``bad_calibration``, ``sync_*``.
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -38,7 +37,6 @@ from depth_nodes.nodes.depth_common import (
 from depth_nodes.nodes.point_cloud import COLOR_ENCODINGS
 from depth_nodes.nodes.point_cloud_xyz import fill_unknown
 from depth_nodes.ros.image import to_rgb8
-from depth_nodes.ros.node import run_node
 from depth_nodes.ros.params import IMAGE_TRANSPORT, NodeParameters, ParamSpec
 from depth_nodes.ros.pointcloud import build_pointcloud
 from depth_nodes.ros.transport import image_pixels
@@ -92,7 +90,3 @@ class PointCloudXyzrgbNode(DepthImageNode):
         depth = fill_unknown(depth, self.params.values['invalid_depth'])
         self.pub_points.publish(build_pointcloud(depth_to_points(depth, camera),
                                                  depth_msg.header, rgb=rgb))
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.point_cloud_xyzrgb` (tools/live)
-    sys.exit(run_node(PointCloudXyzrgbNode))

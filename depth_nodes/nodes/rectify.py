@@ -22,7 +22,6 @@ A frame without output is counted in ``drops`` and logged (throttled) with its r
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 import numpy as np
@@ -38,7 +37,7 @@ from depth_nodes.ros.image import (
     array_to_image,
     to_gray,
 )
-from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import (
     IMAGE_TRANSPORT,
     THREADS,
@@ -149,7 +148,3 @@ class RectifyNode(DepthNode):
             mono = 'mono16' if rectified.dtype == np.uint16 else 'mono8'
             self.pub_rect.publish(
                 array_to_image(to_gray(rectified, encoding), mono, image_msg.header))
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.rectify` (tools/live)
-    sys.exit(run_node(RectifyNode))

@@ -26,7 +26,6 @@ connected by the transforms received), ``unsupported_encoding``, the decoding re
 from __future__ import annotations
 
 import copy
-import sys
 from typing import Any
 
 import numpy as np
@@ -38,7 +37,6 @@ from depth_nodes.core.transforms import TransformTree, rotation_matrix
 from depth_nodes.errors import ArgumentError, ConfigError
 from depth_nodes.nodes.depth_common import QUEUE_SIZE, DepthImageNode, depth_transport
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.ros.node import run_node
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 
 try:  # every ROS 2 install has tf2_msgs, the PyPI wheels do not: depth_in_rgb is then needed
@@ -147,7 +145,3 @@ class RegisterNode(DepthImageNode):
             info = copy.deepcopy(rgb_info)
             info.header = header
             self.pub_info.publish(info)
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.register_depth` (tools/live)
-    sys.exit(run_node(RegisterNode))

@@ -8,7 +8,9 @@ script. An executable under image_pipeline's name starts the node under the defa
 name upstream gives it, so a parameter file keyed by that name applies.
 
 ``python -m depth_nodes.nodes.scripts <name> [args]`` runs a script without installing the
-package.
+package; ``<name>`` may also be a ``package.module:Class`` node plugin, as a graph
+description allows (the live graph of processes, ``tools/live/processes.py``, starts every
+node this way).
 """
 
 from __future__ import annotations
@@ -80,10 +82,31 @@ def __dir__() -> list[str]:
     return sorted([*globals(), *script_names()])
 
 
+def plugin_main(target: str) -> Callable[[list[str] | None], int]:
+    """The ``main`` of a node class given as ``package.module:Class`` (not in the registry).
+
+    Raises:
+        KeyError: ``target`` is not of that form, or names no class.
+    """
+    module_name, _, class_name = target.partition(':')
+    try:
+        node_class = getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError, ValueError):
+        raise KeyError(target) from None
+
+    def main(args: list[str] | None = None) -> int:
+        return run_node(node_class, args)
+
+    return main
+
+
 if __name__ == '__main__':
-    if len(sys.argv) < 2 or sys.argv[1] not in _SCRIPTS:
-        print('usage: python -m depth_nodes.nodes.scripts SCRIPT [--help | --ros-args ...]'
-              f'\nscripts: {", ".join(script_names())}', file=sys.stderr)
+    try:
+        chosen = sys.argv[1]
+        main = script(chosen) if chosen in _SCRIPTS else plugin_main(chosen)
+    except (IndexError, KeyError):
+        print('usage: python -m depth_nodes.nodes.scripts SCRIPT|module:Class [--help | '
+              f'--ros-args ...]\nscripts: {", ".join(script_names())}', file=sys.stderr)
         sys.exit(2)
     del sys.argv[0]  # the script's name in its place: rclpy and --help read sys.argv
-    sys.exit(script(sys.argv[0])(None))
+    sys.exit(main(None))

@@ -47,7 +47,6 @@ threads (the same output).
 from __future__ import annotations
 
 import queue
-import sys
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -68,7 +67,7 @@ from depth_nodes.core.sgm.select import SUBPIXEL_STEP
 from depth_nodes.errors import ArgumentError
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image, to_uint8
-from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import (
     IMAGE_TRANSPORT,
     NodeParameters,
@@ -146,11 +145,11 @@ PARAMETERS = [
     ParamSpec('threads', 0, 'Threads of the matcher (every algorithm); 0 (or more than the '
               'cores): every core. In a '
               'graph of several processes on few cores, 1 wastes less CPU on waiting '
-              'threads (see the README, bench --live)', 0, 1024),
+              'threads (see the README, bench live)', 0, 1024),
     ParamSpec('parallel_frames', 1, 'census SGM: frames matched at once, each on its own '
               'thread with its own buffers (640x480x128: 25 MB with 5 paths, 129 MB with 8); '
               '2 keeps two cores busy with no waiting between threads (see the README, '
-              'bench --live)', 1, 16,
+              'bench live)', 1, 16,
               read_only=True),
     ParamSpec('correlation_window_size', 15, 'OpenCV: matched block size (odd; block '
               'matching 5..255)', 1, 255, check=_odd),
@@ -425,7 +424,3 @@ class SgmStereoNode(DepthNode):
         if self._workers is not None:
             self._workers.shutdown()
         super().destroy_node()
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.sgm_stereo` (tools/live)
-    sys.exit(run_node(SgmStereoNode))

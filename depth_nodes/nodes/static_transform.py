@@ -14,7 +14,6 @@ also run on: without it the node stops at start-up with a one-line error.
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 from geometry_msgs.msg import TransformStamped
@@ -22,7 +21,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from depth_nodes.core.transforms import camera_transform
 from depth_nodes.errors import ConfigError
-from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import NodeParameters, ParamSpec
 
 try:  # every ROS 2 install has tf2_msgs, the PyPI wheels do not: the node then says so
@@ -81,7 +80,3 @@ class StaticTransformNode(DepthNode):
         self.message = TFMessage(transforms=[transform(values,
                                                        self.get_clock().now().to_msg())])
         self.add_output(TFMessage, '/tf_static', qos=TF_STATIC_QOS).publish(self.message)
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.static_transform` (tools/live)
-    sys.exit(run_node(StaticTransformNode))

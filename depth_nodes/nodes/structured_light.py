@@ -38,7 +38,6 @@ framing reasons of :mod:`~depth_nodes.core.structured_light.framing`, ``bad_patt
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Mapping
 from dataclasses import fields
@@ -73,7 +72,7 @@ from depth_nodes.errors import (
 )
 from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import (
     IMAGE_TRANSPORT,
     NodeParameters,
@@ -343,7 +342,3 @@ def _geometry(info: CameraInfo, projector_info: CameraInfo
     camera = camera_info_to_model(info).binned()
     geometry = ProjectorGeometry.from_models(camera, camera_info_to_model(projector_info))
     return geometry, camera_rays(camera)
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.structured_light` (tools/live)
-    sys.exit(run_node(StructuredLightNode))

@@ -41,7 +41,6 @@ CameraInfo's size), ``uncalibrated``, ``bad_calibration``, ``sync_*``.
 from __future__ import annotations
 
 import copy
-import sys
 from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
@@ -55,7 +54,7 @@ from depth_nodes.core.tof import ToFDecoder, ToFParams, check_frequencies
 from depth_nodes.errors import ArgumentError, CalibrationError, MessageError
 from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model, model_to_camera_info
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.ros.node import DepthNode, run_node
+from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import (
     THREADS,
     NodeParameters,
@@ -182,7 +181,3 @@ class ToFNode(DepthNode):
             points = depth_to_points(result.depth, intrinsics(camera))
             self.pub_points.publish(build_pointcloud(
                 points, header, extra_fields={'intensity': result.amplitude}))
-
-
-if __name__ == '__main__':  # `python -m depth_nodes.nodes.tof` (tools/live)
-    sys.exit(run_node(ToFNode))

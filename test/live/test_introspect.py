@@ -31,7 +31,7 @@ NODE = '/stereo/left/rectify_left'
 def graph() -> Iterator[dict[str, str]]:
     env = graph_env()
     node = subprocess.Popen(
-        [sys.executable, '-m', 'depth_nodes.nodes.rectify', '--ros-args', '-r',
+        [sys.executable, '-m', 'depth_nodes.nodes.scripts', 'rectify', '--ros-args', '-r',
          '__ns:=/stereo/left', '-r', 'image:=image_raw', '-r', '__node:=rectify_left'],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO)
     player = subprocess.Popen(

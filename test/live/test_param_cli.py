@@ -22,7 +22,7 @@ NODE = '/stereo/sgm_stereo'
 def _start_sgm_node(env: dict[str, str], *ros_args: str) -> subprocess.Popen[str]:
     """sgm_stereo in namespace /stereo, once `param list` reaches it."""
     proc = subprocess.Popen(
-        [sys.executable, '-m', 'depth_nodes.nodes.sgm_stereo', '--ros-args',
+        [sys.executable, '-m', 'depth_nodes.nodes.scripts', 'sgm_stereo', '--ros-args',
          '-r', '__ns:=/stereo', *ros_args],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO)
     deadline = time.monotonic() + START_TIMEOUT

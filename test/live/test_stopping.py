@@ -94,7 +94,7 @@ def test_a_node_process_stops_cleanly(tmp_path: Path, ros_env: dict[str, str],
                                       sig: int) -> None:
     before = _segments()
     log = tmp_path / 'node.log'
-    proc = _start([sys.executable, '-m', 'depth_nodes.nodes.rectify', '--ros-args', '-p',
+    proc = _start([sys.executable, '-m', 'depth_nodes.nodes.scripts', 'rectify', '--ros-args', '-p',
                    'diagnostics_period:=0.2'], ros_env, log, background=True)
     _wait_for(lambda: _node_listed(ros_env, '/rectify'), proc, log)
     _stop(proc, sig, log)
@@ -186,7 +186,7 @@ def test_a_second_signal_stops_at_once(tmp_path: Path, ros_env: dict[str, str]) 
 
 @pytest.mark.parametrize(('command', 'sig', 'ready_topic'), [
     ([*CLI, 'pipeline'], signal.SIGTERM, '/stereo/points2'),
-    ([sys.executable, '-m', 'depth_nodes.nodes.rectify', '--ros-args', '-r',
+    ([sys.executable, '-m', 'depth_nodes.nodes.scripts', 'rectify', '--ros-args', '-r',
       '__ns:=/stereo/left', '-r', 'image:=image_raw'], signal.SIGINT,
      '/stereo/left/image_rect'),
 ])

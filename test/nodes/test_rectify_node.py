@@ -184,7 +184,7 @@ def test_threads_parameter_is_applied_to_the_frame(context: Context) -> None:
 
 def test_bad_startup_parameter_is_a_clear_error(ros_env: dict[str, str]) -> None:
     result = subprocess.run(
-        [sys.executable, '-m', 'depth_nodes.nodes.rectify', '--ros-args',
+        [sys.executable, '-m', 'depth_nodes.nodes.scripts', 'rectify', '--ros-args',
          '-p', 'interpolation:=bilinear'],
         capture_output=True, text=True, env=ros_env, timeout=120, check=False)
     assert result.returncode == 1

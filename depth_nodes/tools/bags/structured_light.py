@@ -119,11 +119,6 @@ def stamped_header(stamp_ns: int, frame_id: str) -> Header:
     return header
 
 
-#: The old private name, which tools/evaluation/structured_light.py still imports: remove
-#: it once that imports stamped_header.
-_header = stamped_header
-
-
 def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfig, *,
                                overwrite: bool = False) -> int:
     """Simulate ``config`` and write the bag (and its speckle reference) at ``path``.

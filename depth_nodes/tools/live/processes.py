@@ -36,13 +36,13 @@ STOP_TIMEOUT_S = 15.0
 
 
 def node_command(spec: NodeSpec, params_file: Path) -> list[str]:
-    """The command that runs ``spec`` as its own process (its module's ``main``)."""
-    target = NODE_PLUGINS.get(spec.plugin, spec.plugin)
-    module = target.partition(':')[0]
-    if not module or ':' not in target:
+    """The command that runs ``spec`` as its own process (its console script's ``main``,
+    or a ``module:Class`` plugin's, through ``python -m depth_nodes.nodes.scripts``)."""
+    if spec.plugin not in NODE_PLUGINS and ':' not in spec.plugin:
         raise ConfigError(f'node {spec.fully_qualified_name}: plugin {spec.plugin!r} has no '
                           'module to run as a process')
-    command = [sys.executable, '-m', module, '--ros-args', '-r', f'__node:={spec.name}',
+    command = [sys.executable, '-m', 'depth_nodes.nodes.scripts', spec.plugin, '--ros-args',
+               '-r', f'__node:={spec.name}',
                '-r', f'__ns:={spec.namespace}', '--params-file', str(params_file)]
     for src, dst in spec.remappings.items():
         command += ['-r', f'{src}:={dst}']
