@@ -59,7 +59,7 @@ from depth_nodes.core.opencv_stereo import BmSettings, SgbmSettings, opencv_bm, 
 from depth_nodes.core.settings import Rule, problem
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
-from depth_nodes.core.sgm.matcher import P2_MAX
+from depth_nodes.core.sgm.params import P2_MAX
 from depth_nodes.core.sgm.select import SUBPIXEL_STEP
 from depth_nodes.errors import ArgumentError
 from depth_nodes.ros.disparity import build_disparity

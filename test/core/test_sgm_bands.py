@@ -13,7 +13,7 @@ import pytest
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS, aggregate_path_reference
-from depth_nodes.core.sgm.bands import Task, band_layout, band_rows, run_tasks
+from depth_nodes.core.sgm.bands import Task, band_layout, band_rows, run_tasks, worker_cpus
 from depth_nodes.core.sgm.cost import cost_volume_reference
 
 
@@ -74,13 +74,11 @@ def test_workers_are_pinned_one_per_cpu_when_they_are_as_many() -> None:
     taken by another process then slows one worker, never both), and the caller gets its
     own set back. With one thread, or fewer workers than CPUs (left to the scheduler, so
     that two matchers do not crowd onto the same CPUs), nothing is pinned."""
-    from depth_nodes.core.sgm.bands import _worker_cpus
-
-    assert _worker_cpus(2, {3, 5}) == [3, 5]
-    assert _worker_cpus(4, {0, 1, 2, 3}) == [0, 1, 2, 3]
-    assert _worker_cpus(2, {0, 1, 2, 3}) == []  # fewer workers than CPUs
-    assert _worker_cpus(3, {0, 1}) == []  # more workers than CPUs
-    assert _worker_cpus(1, {0}) == []
+    assert worker_cpus(2, {3, 5}) == [3, 5]
+    assert worker_cpus(4, {0, 1, 2, 3}) == [0, 1, 2, 3]
+    assert worker_cpus(2, {0, 1, 2, 3}) == []  # fewer workers than CPUs
+    assert worker_cpus(3, {0, 1}) == []  # more workers than CPUs
+    assert worker_cpus(1, {0}) == []
     allowed = sorted(os.sched_getaffinity(0))
     seen, after = _affinities_seen(1, set(allowed))
     assert seen == {0: set(allowed)}
@@ -260,8 +258,9 @@ def test_another_thread_count_reuses_the_volumes(paths: int, memory_mb: float,
     ranged = search == 'coarse' and matcher.fallbacks == 0  # else the windows did not fit
     assert ranged == (search == 'coarse' and memory_mb > 0)
     assert matcher.allocations == (2 if ranged else 1)  # coarse: + its flat volume
-    volumes = matcher._ranged_buf if ranged else matcher._buf
-    assert len(volumes['workers']) == two
+    volumes = matcher.workspaces.ranged if ranged else matcher.workspaces.full
+    assert volumes is not None
+    assert len(volumes.workers) == two
 
 
 def test_single_pass_bands_are_cache_sized_and_change_nothing(
@@ -269,7 +268,7 @@ def test_single_pass_bands_are_cache_sized_and_change_nothing(
     """5 paths cut the image into bands of at most CACHED_BAND_BYTES (never below
     MIN_BAND_ROWS rows), and the output is the one-band output bit for bit; 8 paths keep
     their bands."""
-    from depth_nodes.core.sgm import matcher as matcher_module
+    from depth_nodes.core.sgm import workspace
     from depth_nodes.core.sgm.bands import CACHED_BAND_BYTES, CELL_BYTES, MIN_BAND_ROWS
 
     assert SgmMatcher(SgmParams(disparity_range=128, paths=5)).bands(480, 640)[0].rows == (
@@ -278,7 +277,7 @@ def test_single_pass_bands_are_cache_sized_and_change_nothing(
         MIN_BAND_ROWS)
     left, right = _pair(200, 90, seed=7)
     assert SgmMatcher(SgmParams(disparity_range=16, paths=5)).bands(200, 90)[0].rows == 25
-    monkeypatch.setattr(matcher_module, 'CACHED_BAND_BYTES', 90 * 16 * CELL_BYTES * 20)
+    monkeypatch.setattr(workspace, 'CACHED_BAND_BYTES', 90 * 16 * CELL_BYTES * 20)
     banded = SgmMatcher(SgmParams(disparity_range=16, paths=5))
     assert [b.rows for b in banded.bands(200, 90)] == [20] * 10
     got = banded.match(left, right)

@@ -7,18 +7,11 @@ import pytest
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import aggregate_reference
+from depth_nodes.core.sgm.border import fill_outside, mean_best_cost
+from depth_nodes.core.sgm.brightness import GAIN_LIMITS, matched_brightness
+from depth_nodes.core.sgm.census import census_dtype, census_transform, census_transform_reference
 from depth_nodes.core.sgm.check import check_disparity, check_disparity_reference
-from depth_nodes.core.sgm.cost import (
-    GAIN_LIMITS,
-    census_dtype,
-    census_transform,
-    census_transform_reference,
-    cost_volume,
-    cost_volume_reference,
-    fill_outside,
-    matched_brightness,
-    mean_best_cost,
-)
+from depth_nodes.core.sgm.cost import cost_volume, cost_volume_reference
 from depth_nodes.core.sgm.select import select_reference
 
 

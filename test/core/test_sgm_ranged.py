@@ -188,8 +188,9 @@ def test_the_flat_volumes_grow_but_never_past_memory_mb() -> None:
                                        memory_mb=memory_mb))
         matcher.match(left, right)
         assert matcher.fallbacks == 0
-        flat = matcher._ranged_buf  # the sizes are the point here
-        assert flat['cost'].size == flat['partial'].size == grown
+        flat = matcher.workspaces.ranged  # the sizes are the point here
+        assert flat is not None
+        assert flat.cost.size == flat.partial.size == grown
 
 
 def test_tight_windows_when_the_aligned_ones_do_not_fit() -> None:
@@ -200,7 +201,8 @@ def test_tight_windows_when_the_aligned_ones_do_not_fit() -> None:
                               'disparity_search': 'coarse', 'search_margin': 1.0}
     roomy = SgmMatcher(SgmParams(**common))
     roomy.match(left, right)
-    coarse = roomy._coarse._buf['disparity']  # the half-resolution pass's output
+    coarse = roomy.coarse.half_disparity  # the half-resolution pass's output
+    assert coarse is not None
     tight = search_ranges(coarse, left.shape, min_disparity=0, disparity_range=40, margin=1.0,
                           outside=0.25 * 40)[1].sum()
     aligned = roomy.search_cells * left.size * 40

@@ -33,23 +33,23 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
+from depth_nodes.core.jit import no_nrt_kernel
 from depth_nodes.core.sgm.aggregate import (
     SENTINEL,
-    _ring,
-    no_nrt_kernel,
     path_start,
     path_step,
+    ring_slot,
     store_path,
     table_p2,
 )
 from depth_nodes.core.sgm.cost import (
     OUT_OF_RANGE_COST,
     CostInputs,
-    _pixel_costs,
-    _pixel_costs_16,
+    pixel_costs,
+    pixel_costs_16,
     right_halves,
 )
-from depth_nodes.core.sgm.select import _key, _keyed_min, select_pixel, subpixel_offset
+from depth_nodes.core.sgm.select import cost_key, keyed_min, select_pixel, subpixel_offset
 
 U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
@@ -109,7 +109,7 @@ def search_ranges(coarse: F32, shape: tuple[int, int], *, min_disparity: int,
     window starts at disparity index 0 and reaches at least the largest disparity that
     may be published there (its match ``outside`` px past the border): the coarse pass
     is least reliable there, and the disparities are extrapolated from the neighbours
-    (``cost.fill_outside``). Teddy's bad-2 after the shipped graph's cross-check (5
+    (``border.fill_outside``). Teddy's bad-2 after the shipped graph's cross-check (5
     paths): 0.0584 with the full search, 0.0686 with the coarse windows in the strip,
     0.0630 with these, 0.0586 with the full range there (whose volumes at 1280x720 / 256
     no longer fit the default memory_mb).
@@ -212,9 +212,9 @@ def _ranged_cost_rows(census_l: NDArray[Any], census_rm: NDArray[Any], left: F32
             cell, a, b, xm0 = _window_cell(y, x, w, min_disparity, n_disp, lo, wid, base, out)
             if a > b:
                 continue
-            _pixel_costs(census_l[y, x], census_rm[y], left[y, x], lo_l[y, x], hi_l[y, x],
-                         right_m[y], lo_rm[y], hi_rm[y], xm0, a, b, census_weight,
-                         intensity_weight, use_bt, truncation, cell)
+            pixel_costs(census_l[y, x], census_rm[y], left[y, x], lo_l[y, x], hi_l[y, x],
+                        right_m[y], lo_rm[y], hi_rm[y], xm0, a, b, census_weight,
+                        intensity_weight, use_bt, truncation, cell)
 
 
 @no_nrt_kernel()
@@ -236,10 +236,10 @@ def _ranged_cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uin
             if a > b:
                 continue
             cl = census_l[y, x]
-            _pixel_costs_16(np.uint16(cl & np.uint32(0xFFFF)), np.uint16(cl >> np.uint32(16)),
-                            rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
-                            lo_rm[y], hi_rm[y], xm0, a, b, census_weight, intensity_weight,
-                            use_bt, truncation, cell)
+            pixel_costs_16(np.uint16(cl & np.uint32(0xFFFF)), np.uint16(cl >> np.uint32(16)),
+                           rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
+                           lo_rm[y], hi_rm[y], xm0, a, b, census_weight, intensity_weight,
+                           use_bt, truncation, cell)
 
 
 def ranged_costs(inputs: CostInputs, y0: int, rows: int, lo: I32, wid: I32, base: I64,
@@ -255,7 +255,7 @@ def ranged_costs(inputs: CostInputs, y0: int, rows: int, lo: I32, wid: I32, base
 @no_nrt_kernel()
 def ranged_best_cost_sum(cost: U8, lo: I32, wid: I32, base: I64, x_lo: int, x_hi: int,
                          row_step: int) -> float:
-    """``cost.mean_best_cost``'s sum (every ``row_step``-th row, columns [x_lo, x_hi)),
+    """``border.mean_best_cost``'s sum (every ``row_step``-th row, columns [x_lo, x_hi)),
     the minimum taken over each pixel's window."""
     h, w = lo.shape
     total = 0.0
@@ -274,7 +274,7 @@ def ranged_best_cost_sum(cost: U8, lo: I32, wid: I32, base: I64, x_lo: int, x_hi
 @njit(cache=True, nogil=True)
 def ranged_fill_outside(cost: U8, lo: I32, wid: I32, base: I64, y0: int, rows: int,
                         min_disparity: int, n_disp: int, value: int) -> None:
-    """``cost.fill_outside`` on the windows of rows y0 .. y0 + rows - 1."""
+    """``border.fill_outside`` on the windows of rows y0 .. y0 + rows - 1."""
     w = lo.shape[1]
     edge_lo = min(w, max(0, min_disparity + n_disp - 1))
     edge_hi = max(edge_lo, min(w, w + min_disparity))
@@ -325,7 +325,7 @@ def ranged_sweep(cost: U8, base: I64, lo: I32, wid: I32, image: F32, y0: int, ro
         for r in range(rows):
             y = y0 + (rows - 1 - r if upward else r)
             ring = y % 3
-            cur_ring = _ring(lb0, lb1, lb2, ring)
+            cur_ring = ring_slot(lb0, lb1, lb2, ring)
             y_old = y - 3 * sign
             held = 0 <= y_old < h
             for x in range(w):
@@ -345,7 +345,7 @@ def ranged_sweep(cost: U8, base: I64, lo: I32, wid: I32, image: F32, y0: int, ro
                     else:
                         pring = yp % 3
                         p2e = table_p2(p2, p2_table, image[y, x], image[yp, xp])
-                        prev = _ring(lb0, lb1, lb2, pring)[j, xp]
+                        prev = ring_slot(lb0, lb1, lb2, pring)[j, xp]
                         best = path_step(cell, prev[lp:lp + n + 2], int(mbuf[j, pring, xp]),
                                          p1, p2e, cur)
                     mbuf[j, ring, x] = best
@@ -419,13 +419,13 @@ def ranged_select(cost: U8, base: I64, lo: I32, wid: I32, image: F32, partial: U
                 i_lo = max(max(0, xr0 - (w - 1)) - lp, 0)
                 i_hi = min(min(n_disp - 1, xr0) - lp, n - 1)
                 sel_lo, sel_hi = (0, n - 1) if extrapolate else (i_lo, i_hi)
-                key = _keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
+                key = keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
                 k, r = select_pixel(tot, key, sel_lo, sel_hi, subpixel, uniqueness)
                 disparity[y, x] = min_disparity + lp + k
                 ratio[y, x] = r
                 xm0 = w - 1 - xr0 + lp  # mirrored right pixel of entry 0
                 for t in range(i_lo, i_hi + 1):
-                    candidate = _key(tot[np.uint64(t)], lp + t)
+                    candidate = cost_key(tot[np.uint64(t)], lp + t)
                     xm = np.uint64(xm0 + t)
                     keys[xm] = min(keys[xm], candidate)
             for xr in range(w):  # the right view: refine the winners
