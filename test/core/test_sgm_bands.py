@@ -10,6 +10,7 @@ import time
 import numba
 import numpy as np
 import pytest
+from helpers import kernel_size
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS, aggregate_path_reference
@@ -172,6 +173,7 @@ def _bounded_reference(cost: np.ndarray, image: np.ndarray, paths: int, p1: int,
     return total  # type: ignore[no-any-return]
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize(('paths', 'scale', 'overlap'), [(8, 0.0, 3), (8, 12.0, 5),
                                                          (16, 7.5, 4), (4, 0.0, 0),
                                                          (8, 12.0, 19), (16, 0.0, 11)])
@@ -179,12 +181,13 @@ def test_bounded_bands_match_their_reference(paths: int, scale: float, overlap: 
     """With a budget too small for whole volumes, 6-row bands whose upward paths start
     ``overlap`` rows below them: the total equals the reference of exactly that (overlaps
     of 11 and 19 rows pass below the band in pieces of OVERLAP_CHUNK = 8 rows)."""
-    left, right = _pair(29, 31)
+    h, w = 29, kernel_size(31, 15)
+    left, right = _pair(h, w)
     params = SgmParams(disparity_range=7, census_width=5, census_height=5, P1=5, P2=60,
                        p2_adaptive_scale=scale, paths=paths, border_cost=0.0, band_rows=6,
                        band_overlap=overlap, memory_mb=0.0)
     matcher = SgmMatcher(params)
-    assert not matcher.whole_volumes(29, 31)
+    assert not matcher.whole_volumes(h, w)
     matcher.match(left, right, keep_total=True)
     cost = cost_volume_reference(left, right, min_disparity=0, disparity_range=7,
                                  census_window=(5, 5), intensity_weight=1,

@@ -11,7 +11,7 @@ import cv2
 import numba
 import numpy as np
 import pytest
-from helpers import REAL_DATA, REAL_PAIRS
+from helpers import REAL_DATA, REAL_PAIRS, kernel_size
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import aggregate_reference
@@ -47,6 +47,7 @@ def _windows(h: int, w: int, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]
     return lo, wid
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('paths', [8, 5, 16])
 @pytest.mark.parametrize('border_cost', [0.0, 3.5])
 @pytest.mark.parametrize('dtype', [np.uint8, np.float32])
@@ -55,7 +56,8 @@ def test_full_windows_are_the_full_search_bit_for_bit(paths: int, border_cost: f
                                                      dtype: type, threads: int) -> None:
     """A margin wider than the range gives every pixel the full range: the coarse search
     is then the full one, every output identical (NaNs included)."""
-    left, right = (a.astype(dtype) for a in _pair(h=41, w=67, seed=1))
+    h, w = kernel_size((41, 67), (9, 29))
+    left, right = (a.astype(dtype) for a in _pair(h=h, w=w, seed=1))
     common: dict[str, Any] = {'disparity_range': 12, 'min_disparity': -2,
                               'census_width': 5, 'census_height': 5, 'paths': paths,
                               'border_cost': border_cost}
@@ -76,6 +78,7 @@ def test_full_windows_are_the_full_search_bit_for_bit(paths: int, border_cost: f
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('paths', [8, 5])
 @pytest.mark.parametrize('border_cost', [0.0, 3.5])
 @pytest.mark.parametrize('subpixel', ['parabola', 'equiangular'])
@@ -85,7 +88,7 @@ def test_random_windows_match_the_reference(paths: int, border_cost: float, subp
     """Costs, border statistic, aggregation and both views' selection over random windows
     against the plain references run on the full volume with every cell outside the
     windows at a cost no path can afford."""
-    left, right = _pair(seed=seed)
+    left, right = _pair(*kernel_size((23, 37), (9, 19)), seed=seed)
     h, w = left.shape
     n, dmin = 10, -1
     lo, wid = _windows(h, w, n, seed)
