@@ -15,15 +15,9 @@ from helpers import REAL_DATA, REAL_PAIRS, kernel_size
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import aggregate_reference
+from depth_nodes.core.sgm.coarse import ALIGN, NEAR_RADIUS, coarse_window, search_ranges
 from depth_nodes.core.sgm.cost import cost_volume_reference
-from depth_nodes.core.sgm.ranged import (
-    ALIGN,
-    NEAR_RADIUS,
-    coarse_window,
-    flat_offsets,
-    search_ranges,
-    window_mask,
-)
+from depth_nodes.core.sgm.ranged import flat_offsets, window_mask
 from depth_nodes.core.sgm.select import select_reference
 from depth_nodes.errors import ArgumentError
 
