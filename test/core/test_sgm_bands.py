@@ -4,6 +4,8 @@ memory-bounded mode against a reference built from the plain per-path references
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import threading
 import time
 
@@ -12,9 +14,18 @@ import numpy as np
 import pytest
 from helpers import kernel_size
 
-from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.core.sgm import SgmMatcher, SgmParams, bands, workspace
 from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS, aggregate_path_reference
-from depth_nodes.core.sgm.bands import Task, band_layout, band_rows, run_tasks, worker_cpus
+from depth_nodes.core.sgm.bands import (
+    CACHED_BAND_BYTES,
+    CELL_BYTES,
+    MIN_BAND_ROWS,
+    Task,
+    band_layout,
+    band_rows,
+    run_tasks,
+    worker_cpus,
+)
 from depth_nodes.core.sgm.cost import cost_volume_reference
 
 
@@ -99,8 +110,6 @@ def test_a_refused_affinity_pins_nothing_and_fails_nothing(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Where the system refuses ``sched_setaffinity`` (a sandbox), every task still runs
     once: pinning is an optimisation."""
-    from depth_nodes.core.sgm import bands
-
     calls: list[set[int]] = []
 
     def refuse(pid: int, cpus: set[int]) -> None:
@@ -271,9 +280,6 @@ def test_single_pass_bands_are_cache_sized_and_change_nothing(
     """5 paths cut the image into bands of at most CACHED_BAND_BYTES (never below
     MIN_BAND_ROWS rows), and the output is the one-band output bit for bit; 8 paths keep
     their bands."""
-    from depth_nodes.core.sgm import workspace
-    from depth_nodes.core.sgm.bands import CACHED_BAND_BYTES, CELL_BYTES, MIN_BAND_ROWS
-
     assert SgmMatcher(SgmParams(disparity_range=128, paths=5)).bands(480, 640)[0].rows == (
         int(CACHED_BAND_BYTES // (640 * 128 * CELL_BYTES)))
     assert SgmMatcher(SgmParams(disparity_range=256, paths=5)).bands(1080, 1920)[0].rows == (
@@ -299,10 +305,6 @@ def test_openmp_threads_sleep_between_regions_unless_the_user_says(
     the cores other processes needed: docs/speed.md); a value already set is kept. It must
     hold when libgomp loads, so it is checked where libgomp loaded: in a fresh process,
     after a parallel kernel ran."""
-    import os
-    import subprocess
-    import sys
-
     env = {k: v for k, v in os.environ.items() if k != 'OMP_WAIT_POLICY'}
     if given is not None:
         env['OMP_WAIT_POLICY'] = given
