@@ -12,6 +12,9 @@ have no Python meaning of their own and are handled here:
 * a compiled kernel's ``py_func`` (the references call a few scalar kernels through it)
   does not exist on a plain function: :func:`python_function`.
 
+Everything else has one already: ``prange`` is ``range``, and ``parallel=True`` or
+:func:`no_nrt_kernel`'s options leave the plain function as any ``njit`` does.
+
 NO_NRT: the selection and cost-row kernels, which take a view of an array for every pixel
 (``cost[y, x]``, ``total[x]``), are compiled with numba's ``_nrt=False``: no reference
 counting (:func:`no_nrt_kernel`). With it, numba increments and decrements the parent
