@@ -274,7 +274,7 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
         ring0: Rows the upward paths already went through (see above).
         extrapolate: Select the left disparity over every disparity, also those whose
             right pixel is outside the image (their cells then hold a neutral cost, see
-            ``cost.fill_outside``): the left border strip takes the disparity its
+            ``border.fill_outside``): the left border strip takes the disparity its
             neighbours' paths carry in. Otherwise only in-image disparities are candidates.
             The right view always uses in-image cells only.
         lines: (4, D + 2) uint16 scratch with SENTINEL at both ends of each line (this
