@@ -12,7 +12,11 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+from depth_nodes.core.jit import JIT_ENABLED
+
+T = TypeVar('T')
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_DIR = Path(__file__).resolve().parent
@@ -101,9 +105,25 @@ class Lazy:
         self._value: Any = None
 
     def __getattr__(self, name: str) -> Any:
+        if name.startswith('_'):  # pytest's collection probes module attributes
+            # (``_mock_name``, ``__wrapped__``): no reason to make the data
+            raise AttributeError(name)
         if self._value is None:
             self._value = self._make()
         return getattr(self._value, name)
+
+
+#: The numba kernels run as plain Python: ``NUMBA_DISABLE_JIT=1``, under which the tests
+#: marked ``kernels`` run again (test/packaging/test_kernels_without_jit.py), about a
+#: thousand times slower than compiled.
+JIT_OFF = not JIT_ENABLED
+
+
+def kernel_size(compiled: T, interpreted: T) -> T:
+    """What drives a kernel test's time (an image size, a disparity range, the cases of a
+    parametrisation): ``compiled`` as usual, the smaller ``interpreted`` with the JIT off,
+    so that the plain-Python run of the kernels stays short."""
+    return interpreted if JIT_OFF else compiled
 
 
 #: The structured-light node's plugin name.

@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from depth_nodes.core._validate import float_map, non_negative
+from depth_nodes.core.validate import float_map, non_negative
 from depth_nodes.errors import ArgumentError
 
 __all__ = ['DEFAULT_TERMS', 'PLAIN_TERMS', 'ConfidenceTerms', 'confidence_map']

@@ -12,7 +12,7 @@ Decisions:
       *mismatch*; a pixel whose partner has no right disparity is an occlusion too.
       A pixel whose partner lies outside the right image is labelled :data:`OUTSIDE`:
       the matcher extrapolated its disparity from its neighbours (the left border
-      strip, see ``sgm.cost.fill_outside``); ``keep_outside`` keeps it (its confidence
+      strip, see ``sgm.border.fill_outside``); ``keep_outside`` keeps it (its confidence
       says how far it was extrapolated), otherwise it is dropped like an occlusion.
     * Speckles: connected regions (4-neighbours differing by at most ``speckle_range`` px)
       of at most ``speckle_size`` pixels are removed, with OpenCV's ``filterSpeckles`` on
@@ -45,10 +45,9 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
-from depth_nodes.core._validate import float_map as _float_map
-from depth_nodes.core._validate import non_negative as _non_negative
 from depth_nodes.core.confidence import DEFAULT_TERMS, ConfidenceTerms, confidence_map
 from depth_nodes.core.settings import Rule, check_settings, setting
+from depth_nodes.core.validate import float_map, non_negative
 from depth_nodes.errors import ArgumentError
 
 __all__ = [
@@ -243,9 +242,9 @@ def left_right_check(disparity: Any, disparity_right: Any, *,
     Raises:
         ArgumentError: Not 2-D float arrays of one shape, or ``max_diff`` negative.
     """
-    left = _float_map('disparity', disparity)
-    right = _float_map('disparity_right', disparity_right, left.shape)
-    limit = _non_negative('max_diff', max_diff)
+    left = float_map('disparity', disparity)
+    right = float_map('disparity_right', disparity_right, left.shape)
+    limit = non_negative('max_diff', max_diff)
     diff = np.empty(left.shape, np.float32)
     labels = np.empty(left.shape, np.uint8)
     _lr_kernel(left, right, limit, diff, labels)
@@ -271,10 +270,10 @@ def remove_speckles(disparity: Any, *, max_size: int, max_diff: float) -> Bool:
     Raises:
         ArgumentError: Bad shapes or negative sizes.
     """
-    disp = _float_map('disparity', disparity)
+    disp = float_map('disparity', disparity)
     if isinstance(max_size, bool) or not isinstance(max_size, (int, np.integer)) or max_size < 0:
         raise ArgumentError(f'max_size must be an int >= 0, got {max_size!r}')
-    diff = _non_negative('max_diff', max_diff)
+    diff = non_negative('max_diff', max_diff)
     finite = np.isfinite(disp)
     if max_size == 0 or not finite.any():
         return np.zeros(disp.shape, np.bool_)
@@ -396,7 +395,7 @@ def fill_holes(disparity: Any, labels: Any, *, mode: str = 'labels',
     Raises:
         ArgumentError: Bad shapes, dtypes or mode.
     """
-    disp = _float_map('disparity', disparity)
+    disp = float_map('disparity', disparity)
     lab = np.asarray(labels)
     if lab.shape != disp.shape or lab.dtype != np.uint8:
         raise ArgumentError(f'labels must be a uint8 array of shape {disp.shape}, got '
@@ -423,7 +422,7 @@ def median_filter(disparity: Any, size: int) -> F32:
     Raises:
         ArgumentError: Bad shapes or a size other than 3 or 5 (OpenCV's float medians).
     """
-    disp = _float_map('disparity', disparity)
+    disp = float_map('disparity', disparity)
     if size not in (3, 5):
         raise ArgumentError(f'size must be 3 or 5, got {size!r}')
     invalid = ~np.isfinite(disp)
@@ -472,8 +471,8 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
     Raises:
         ArgumentError: Bad shapes, dtypes or settings (the message names the argument).
     """
-    left = _float_map('disparity', disparity)
-    _float_map('cost_ratio', cost_ratio, left.shape)
+    left = float_map('disparity', disparity)
+    float_map('cost_ratio', cost_ratio, left.shape)
     if median_size not in (0, 3, 5):
         raise ArgumentError(f'median_size must be 0, 3 or 5, got {median_size!r}')
     check = left_right_check(left, disparity_right, max_diff=disp12_max_diff)

@@ -33,9 +33,9 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from depth_nodes.core._validate import check_float_map
 from depth_nodes.core.camera import StereoModel
 from depth_nodes.core.settings import check_settings, setting
+from depth_nodes.core.validate import check_float_map
 from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]

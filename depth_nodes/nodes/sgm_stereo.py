@@ -46,9 +46,10 @@ threads (the same output).
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import cv2
@@ -62,7 +63,7 @@ from depth_nodes.core.opencv_stereo import BmSettings, SgbmSettings, opencv_bm, 
 from depth_nodes.core.settings import Rule, problem
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
-from depth_nodes.core.sgm.matcher import P2_MAX
+from depth_nodes.core.sgm.params import P2_MAX
 from depth_nodes.core.sgm.select import SUBPIXEL_STEP
 from depth_nodes.errors import ArgumentError
 from depth_nodes.ros.disparity import build_disparity
@@ -77,12 +78,18 @@ from depth_nodes.ros.params import (
 )
 from depth_nodes.ros.workers import OrderedWorkers, use_threads
 
-#: The census matcher's own parameters, declared from SgmParams' settings.
-CENSUS_ONLY = ('census_width', 'census_height', 'census_weight', 'intensity_weight',
-               'intensity_cost', 'intensity_truncation', 'p2_adaptive_scale', 'paths',
-               'subpixel', 'median_filter', 'match_brightness', 'border_cost',
-               'border_extrapolation', 'band_rows', 'band_overlap', 'memory_mb',
-               'disparity_search', 'search_margin')
+#: The SgmParams fields that are also stereo_image_proc's parameters (declared below with
+#: its meaning; some with its defaults when an OpenCV algorithm is chosen).
+SHARED_WITH_UPSTREAM = ('min_disparity', 'disparity_range', 'P1', 'P2', 'uniqueness_ratio',
+                        'disp12_max_diff', 'speckle_size', 'speckle_range')
+#: The census matcher's own parameters: every other SgmParams field, declared from its
+#: setting (a field added to SgmParams becomes a parameter).
+CENSUS_ONLY = tuple(f.name for f in dataclasses.fields(SgmParams)
+                    if f.name not in SHARED_WITH_UPSTREAM)
+#: How sgm_params converts a parameter into its SgmParams field (the others as they are):
+#: P1 and P2 are doubles, as upstream; disp12_max_diff follows OpenCV's rule.
+TO_SGM_PARAMS: dict[str, Callable[[Any], Any]] = {'P1': round, 'P2': round,
+                                                  'disp12_max_diff': lr_threshold}
 _ODD = Rule('', odd=True)
 
 
@@ -192,24 +199,14 @@ def _check_values(values: Mapping[str, Any]) -> str | None:
 
 
 def sgm_params(values: Mapping[str, Any]) -> SgmParams:
-    """The matcher settings of a parameter snapshot."""
-    return SgmParams(
-        min_disparity=values['min_disparity'], disparity_range=values['disparity_range'],
-        census_width=values['census_width'], census_height=values['census_height'],
-        census_weight=values['census_weight'], intensity_weight=values['intensity_weight'],
-        intensity_cost=values['intensity_cost'],
-        intensity_truncation=values['intensity_truncation'],
-        P1=round(values['P1']), P2=round(values['P2']),
-        p2_adaptive_scale=values['p2_adaptive_scale'], paths=values['paths'],
-        uniqueness_ratio=values['uniqueness_ratio'], subpixel=values['subpixel'],
-        median_filter=values['median_filter'], match_brightness=values['match_brightness'],
-        border_cost=values['border_cost'],
-        border_extrapolation=values['border_extrapolation'],
-        disp12_max_diff=lr_threshold(values['disp12_max_diff']),
-        speckle_size=values['speckle_size'],
-        speckle_range=values['speckle_range'], band_rows=values['band_rows'],
-        band_overlap=values['band_overlap'], memory_mb=values['memory_mb'],
-        disparity_search=values['disparity_search'], search_margin=values['search_margin'])
+    """The matcher settings of a parameter snapshot: each SgmParams field from the
+    parameter of its name, through :data:`TO_SGM_PARAMS` where it has an entry."""
+    return SgmParams(**{f.name: TO_SGM_PARAMS.get(f.name, _as_is)(values[f.name])
+                        for f in dataclasses.fields(SgmParams)})
+
+
+def _as_is(value: Any) -> Any:
+    return value
 
 
 def opencv_settings(values: Mapping[str, Any]) -> SgbmSettings:

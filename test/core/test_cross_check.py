@@ -96,6 +96,7 @@ def test_threshold_is_inclusive() -> None:
     assert (labels[20:, 100:] == MISMATCH).all()
 
 
+@pytest.mark.kernels
 class TestKernelsAgainstReferences:
     """Both numba kernels against the plain implementations, on random maps with holes."""
 

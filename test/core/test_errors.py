@@ -26,7 +26,8 @@ from depth_nodes.core.opencv_stereo import BmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.core.rectify import Rectifier, interpolation_flag
 from depth_nodes.core.reproject import depth_std, reproject_disparity
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
-from depth_nodes.core.sgm.cost import census_transform, fill_outside
+from depth_nodes.core.sgm.border import fill_outside
+from depth_nodes.core.sgm.census import census_transform
 from depth_nodes.core.transforms import camera_transform
 from depth_nodes.errors import ArgumentError, DepthNodesError
 from depth_nodes.sim.texture import Texture

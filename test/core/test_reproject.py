@@ -170,6 +170,7 @@ class TestMasks:
             reproject_disparity(disparity, STEREO, **args)  # type: ignore[arg-type]
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('dtype', [np.float32, np.float64])
 @pytest.mark.parametrize(('min_range', 'max_range', 'min_confidence'),
                          [(0.0, 0.0, None), (0.5, 3.0, 0.1), (0.0, 2.0, 0.3)])

@@ -4,16 +4,28 @@ memory-bounded mode against a reference built from the plain per-path references
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import threading
 import time
 
 import numba
 import numpy as np
 import pytest
+from helpers import kernel_size
 
-from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.core.sgm import SgmMatcher, SgmParams, bands, workspace
 from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS, aggregate_path_reference
-from depth_nodes.core.sgm.bands import Task, band_layout, band_rows, run_tasks
+from depth_nodes.core.sgm.bands import (
+    CACHED_BAND_BYTES,
+    CELL_BYTES,
+    MIN_BAND_ROWS,
+    Task,
+    band_layout,
+    band_rows,
+    run_tasks,
+    worker_cpus,
+)
 from depth_nodes.core.sgm.cost import cost_volume_reference
 
 
@@ -74,13 +86,11 @@ def test_workers_are_pinned_one_per_cpu_when_they_are_as_many() -> None:
     taken by another process then slows one worker, never both), and the caller gets its
     own set back. With one thread, or fewer workers than CPUs (left to the scheduler, so
     that two matchers do not crowd onto the same CPUs), nothing is pinned."""
-    from depth_nodes.core.sgm.bands import _worker_cpus
-
-    assert _worker_cpus(2, {3, 5}) == [3, 5]
-    assert _worker_cpus(4, {0, 1, 2, 3}) == [0, 1, 2, 3]
-    assert _worker_cpus(2, {0, 1, 2, 3}) == []  # fewer workers than CPUs
-    assert _worker_cpus(3, {0, 1}) == []  # more workers than CPUs
-    assert _worker_cpus(1, {0}) == []
+    assert worker_cpus(2, {3, 5}) == [3, 5]
+    assert worker_cpus(4, {0, 1, 2, 3}) == [0, 1, 2, 3]
+    assert worker_cpus(2, {0, 1, 2, 3}) == []  # fewer workers than CPUs
+    assert worker_cpus(3, {0, 1}) == []  # more workers than CPUs
+    assert worker_cpus(1, {0}) == []
     allowed = sorted(os.sched_getaffinity(0))
     seen, after = _affinities_seen(1, set(allowed))
     assert seen == {0: set(allowed)}
@@ -100,8 +110,6 @@ def test_a_refused_affinity_pins_nothing_and_fails_nothing(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Where the system refuses ``sched_setaffinity`` (a sandbox), every task still runs
     once: pinning is an optimisation."""
-    from depth_nodes.core.sgm import bands
-
     calls: list[set[int]] = []
 
     def refuse(pid: int, cpus: set[int]) -> None:
@@ -174,6 +182,7 @@ def _bounded_reference(cost: np.ndarray, image: np.ndarray, paths: int, p1: int,
     return total  # type: ignore[no-any-return]
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize(('paths', 'scale', 'overlap'), [(8, 0.0, 3), (8, 12.0, 5),
                                                          (16, 7.5, 4), (4, 0.0, 0),
                                                          (8, 12.0, 19), (16, 0.0, 11)])
@@ -181,12 +190,13 @@ def test_bounded_bands_match_their_reference(paths: int, scale: float, overlap: 
     """With a budget too small for whole volumes, 6-row bands whose upward paths start
     ``overlap`` rows below them: the total equals the reference of exactly that (overlaps
     of 11 and 19 rows pass below the band in pieces of OVERLAP_CHUNK = 8 rows)."""
-    left, right = _pair(29, 31)
+    h, w = 29, kernel_size(31, 15)
+    left, right = _pair(h, w)
     params = SgmParams(disparity_range=7, census_width=5, census_height=5, P1=5, P2=60,
                        p2_adaptive_scale=scale, paths=paths, border_cost=0.0, band_rows=6,
                        band_overlap=overlap, memory_mb=0.0)
     matcher = SgmMatcher(params)
-    assert not matcher.whole_volumes(29, 31)
+    assert not matcher.whole_volumes(h, w)
     matcher.match(left, right, keep_total=True)
     cost = cost_volume_reference(left, right, min_disparity=0, disparity_range=7,
                                  census_window=(5, 5), intensity_weight=1,
@@ -260,8 +270,9 @@ def test_another_thread_count_reuses_the_volumes(paths: int, memory_mb: float,
     ranged = search == 'coarse' and matcher.fallbacks == 0  # else the windows did not fit
     assert ranged == (search == 'coarse' and memory_mb > 0)
     assert matcher.allocations == (2 if ranged else 1)  # coarse: + its flat volume
-    volumes = matcher._ranged_buf if ranged else matcher._buf
-    assert len(volumes['workers']) == two
+    volumes = matcher.workspaces.ranged if ranged else matcher.workspaces.full
+    assert volumes is not None
+    assert len(volumes.workers) == two
 
 
 def test_single_pass_bands_are_cache_sized_and_change_nothing(
@@ -269,16 +280,13 @@ def test_single_pass_bands_are_cache_sized_and_change_nothing(
     """5 paths cut the image into bands of at most CACHED_BAND_BYTES (never below
     MIN_BAND_ROWS rows), and the output is the one-band output bit for bit; 8 paths keep
     their bands."""
-    from depth_nodes.core.sgm import matcher as matcher_module
-    from depth_nodes.core.sgm.bands import CACHED_BAND_BYTES, CELL_BYTES, MIN_BAND_ROWS
-
     assert SgmMatcher(SgmParams(disparity_range=128, paths=5)).bands(480, 640)[0].rows == (
         int(CACHED_BAND_BYTES // (640 * 128 * CELL_BYTES)))
     assert SgmMatcher(SgmParams(disparity_range=256, paths=5)).bands(1080, 1920)[0].rows == (
         MIN_BAND_ROWS)
     left, right = _pair(200, 90, seed=7)
     assert SgmMatcher(SgmParams(disparity_range=16, paths=5)).bands(200, 90)[0].rows == 25
-    monkeypatch.setattr(matcher_module, 'CACHED_BAND_BYTES', 90 * 16 * CELL_BYTES * 20)
+    monkeypatch.setattr(workspace, 'CACHED_BAND_BYTES', 90 * 16 * CELL_BYTES * 20)
     banded = SgmMatcher(SgmParams(disparity_range=16, paths=5))
     assert [b.rows for b in banded.bands(200, 90)] == [20] * 10
     got = banded.match(left, right)
@@ -297,10 +305,6 @@ def test_openmp_threads_sleep_between_regions_unless_the_user_says(
     the cores other processes needed: docs/speed.md); a value already set is kept. It must
     hold when libgomp loads, so it is checked where libgomp loaded: in a fresh process,
     after a parallel kernel ran."""
-    import os
-    import subprocess
-    import sys
-
     env = {k: v for k, v in os.environ.items() if k != 'OMP_WAIT_POLICY'}
     if given is not None:
         env['OMP_WAIT_POLICY'] = given

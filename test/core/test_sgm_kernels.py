@@ -1,24 +1,19 @@
-"""Every SGM numba kernel against its plain numpy reference, on small random inputs."""
+"""Every SGM numba kernel against its plain numpy reference, on small random inputs
+(smaller still, and fewer cases, when the kernels run as plain Python: ``kernels``)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import kernel_size
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import aggregate_reference
+from depth_nodes.core.sgm.border import fill_outside, mean_best_cost
+from depth_nodes.core.sgm.brightness import GAIN_LIMITS, matched_brightness
+from depth_nodes.core.sgm.census import census_dtype, census_transform, census_transform_reference
 from depth_nodes.core.sgm.check import check_disparity, check_disparity_reference
-from depth_nodes.core.sgm.cost import (
-    GAIN_LIMITS,
-    census_dtype,
-    census_transform,
-    census_transform_reference,
-    cost_volume,
-    cost_volume_reference,
-    fill_outside,
-    matched_brightness,
-    mean_best_cost,
-)
+from depth_nodes.core.sgm.cost import cost_volume, cost_volume_reference
 from depth_nodes.core.sgm.select import select_reference
 
 
@@ -29,7 +24,11 @@ def _outside(shape: tuple[int, int, int], min_disparity: int) -> np.ndarray:
     return (xr < 0) | (xr >= w)
 
 
-def _pair(h: int = 23, w: int = 37, shift: int = 5, seed: int = 0) -> tuple[np.ndarray, ...]:
+#: (rows, columns) of the random pair most tests match.
+H, W = kernel_size((23, 37), (9, 19))
+
+
+def _pair(h: int = H, w: int = W, shift: int = 5, seed: int = 0) -> tuple[np.ndarray, ...]:
     rng = np.random.default_rng(seed)
     wide = rng.integers(0, 256, (h, w + shift)).astype(np.uint8)
     left = wide[:, shift:]
@@ -37,6 +36,7 @@ def _pair(h: int = 23, w: int = 37, shift: int = 5, seed: int = 0) -> tuple[np.n
     return left, right.astype(np.uint8)
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('window', [(3, 3), (5, 5), (7, 9), (9, 7)])
 def test_census_matches_reference(window: tuple[int, int]) -> None:
     left, _ = _pair()
@@ -44,6 +44,7 @@ def test_census_matches_reference(window: tuple[int, int]) -> None:
                                   census_transform_reference(left, window))
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize(('window', 'dtype'), [((5, 5), np.uint32), ((3, 11), np.uint32),
                                                 ((5, 7), np.uint64), ((9, 7), np.uint64)])
 def test_census_uses_32_bits_when_the_window_fits(window: tuple[int, int],
@@ -59,6 +60,7 @@ def test_census_rejects_a_buffer_too_narrow_for_the_window() -> None:
         census_transform(left, (5, 7), np.empty(left.shape, np.uint32))
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('window', [(5, 5), (7, 9)])
 def test_mirrored_census_is_the_census_flipped(window: tuple[int, int]) -> None:
     left, _ = _pair()
@@ -66,6 +68,7 @@ def test_mirrored_census_is_the_census_flipped(window: tuple[int, int]) -> None:
                                   census_transform_reference(left, window))
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('settings', [
     {'census_weight': 1, 'intensity_weight': 0},
     {'census_weight': 0, 'intensity_weight': 1, 'intensity_cost': 'ad'},
@@ -77,12 +80,13 @@ def test_mirrored_census_is_the_census_flipped(window: tuple[int, int]) -> None:
 ])
 @pytest.mark.parametrize('min_disparity', [0, -4, 3])
 @pytest.mark.parametrize('image_type', ['uint8', 'float32'])
-@pytest.mark.parametrize(('window', 'disparities'), [((5, 7), 11), ((5, 5), 35)])
+@pytest.mark.parametrize(('window', 'disparities'), kernel_size([((5, 7), 11), ((5, 5), 35)],
+                                                                [((5, 7), 7), ((5, 5), 13)]))
 def test_cost_volume_matches_reference(settings: dict[str, object], min_disparity: int,
                                        image_type: str, window: tuple[int, int],
                                        disparities: int) -> None:
     """(5, 7) has 34 neighbours: a 64-bit census; (5, 5) a 32-bit one, and 35 disparities
-    run the kernel's vector loop body as well as its remainder. uint8 pairs with the 32-bit
+    run the compiled kernel's vector loop body as well as its remainder. uint8 pairs with the 32-bit
     census take the 16-bit kernel, every other case the float one."""
     left, right = _pair()
     if image_type == 'float32':  # fractional intensities
@@ -128,6 +132,7 @@ def test_brightness_matching_makes_the_cost_indifferent_to_a_gain() -> None:
     assert np.median(np.abs(plain - clean)[inside]) >= 10
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('min_disparity', [0, -5, 4])
 def test_fill_outside_and_mean_best_cost(min_disparity: int) -> None:
     left, right = _pair()
@@ -146,6 +151,7 @@ def test_fill_outside_and_mean_best_cost(min_disparity: int) -> None:
         fill_outside(cost, min_disparity, 256)
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('settings', [
     {'census_weight': 1, 'intensity_weight': 1, 'intensity_truncation': 255},
     {'census_weight': 255, 'intensity_weight': 255, 'intensity_truncation': 10**6},
@@ -156,9 +162,10 @@ def test_16_bit_kernel_at_the_extremes_of_uint8(settings: dict[str, object]) -> 
     the 16-bit kernel of uint8 pairs sees; it must equal the float kernel and the
     reference."""
     rng = np.random.default_rng(3)
-    left = (rng.integers(0, 2, (9, 40)) * 255).astype(np.uint8)
+    left = (rng.integers(0, 2, (9, kernel_size(40, 20))) * 255).astype(np.uint8)
     right = np.roll(left, -3, axis=1)
-    kwargs = {'min_disparity': 0, 'disparity_range': 36, 'census_window': (5, 5), **settings}
+    kwargs = {'min_disparity': 0, 'disparity_range': kernel_size(36, 16),
+              'census_window': (5, 5), **settings}
     expected = cost_volume_reference(left, right, **kwargs)
     np.testing.assert_array_equal(cost_volume(left, right, **kwargs), expected)
     np.testing.assert_array_equal(
@@ -166,6 +173,7 @@ def test_16_bit_kernel_at_the_extremes_of_uint8(settings: dict[str, object]) -> 
     assert expected[expected < 255].max() == 254  # the clip was reached
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize(('paths', 'scale', 'intensity', 'border_cost'), [
     (4, 0.0, 0, 0.0), (5, 0.0, 0, 3.5), (5, 20.0, 1, 0.0), (8, 0.0, 0, 0.0), (8, 12.0, 0, 2.0),
     (8, 20.0, 1, 3.5), (16, 0.0, 0, 0.0), (16, 7.5, 2, 3.5)])
@@ -174,7 +182,7 @@ def test_aggregation_matches_reference(paths: int, scale: float, intensity: int,
     """The aggregated volume equals the reference's over the reference cost volume, whose
     out-of-image cells hold the cost the matcher chose for them (border_cost x the mean
     best cost; the maximum when border_cost is 0)."""
-    left, right = _pair(h=17, w=29)
+    left, right = _pair(*kernel_size((17, 29), (9, 17)))
     params = SgmParams(min_disparity=-2, disparity_range=9, census_width=5, census_height=5,
                        intensity_weight=intensity, P1=5, P2=60, p2_adaptive_scale=scale,
                        paths=paths, median_filter=False, border_cost=border_cost)
@@ -198,6 +206,7 @@ def test_aggregation_matches_reference(paths: int, scale: float, intensity: int,
         _ = matcher.total
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('subpixel', ['none', 'parabola', 'equiangular'])
 @pytest.mark.parametrize(('min_disparity', 'uniqueness'), [(0, 0), (-3, 15), (2, 5)])
 @pytest.mark.parametrize('paths', [8, 5])
@@ -206,7 +215,7 @@ def test_selection_matches_reference(subpixel: str, min_disparity: int, uniquene
                                      paths: int, border_cost: float, max_diff: float) -> None:
     """Selection (over every disparity when the border strip extrapolates) and then the
     left-right and extrapolation rules, against the references of both."""
-    left, right = _pair(h=19, w=31, seed=3)
+    left, right = _pair(*kernel_size((19, 31), (9, 17)), seed=3)
     params = SgmParams(min_disparity=min_disparity, disparity_range=10, census_width=5,
                        census_height=5, P1=4, P2=40, uniqueness_ratio=uniqueness,
                        subpixel=subpixel, median_filter=False, paths=paths,
@@ -237,6 +246,7 @@ def test_buffers_are_reused_across_frames() -> None:
     assert matcher.allocations == 2
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize(('max_diff', 'max_outside'), [(0.0, 0.0), (1.0, 2.5), (2.0, 100.0)])
 def test_check_matches_reference(max_diff: float, max_outside: float) -> None:
     """Random disparities (some NaN, some pointing outside the image) against a random

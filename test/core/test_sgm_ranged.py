@@ -11,19 +11,13 @@ import cv2
 import numba
 import numpy as np
 import pytest
-from helpers import REAL_DATA, REAL_PAIRS
+from helpers import REAL_DATA, REAL_PAIRS, kernel_size
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.aggregate import aggregate_reference
+from depth_nodes.core.sgm.coarse import ALIGN, NEAR_RADIUS, coarse_window, search_ranges
 from depth_nodes.core.sgm.cost import cost_volume_reference
-from depth_nodes.core.sgm.ranged import (
-    ALIGN,
-    NEAR_RADIUS,
-    coarse_window,
-    flat_offsets,
-    search_ranges,
-    window_mask,
-)
+from depth_nodes.core.sgm.ranged import flat_offsets, window_mask
 from depth_nodes.core.sgm.select import select_reference
 from depth_nodes.errors import ArgumentError
 
@@ -47,6 +41,7 @@ def _windows(h: int, w: int, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]
     return lo, wid
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('paths', [8, 5, 16])
 @pytest.mark.parametrize('border_cost', [0.0, 3.5])
 @pytest.mark.parametrize('dtype', [np.uint8, np.float32])
@@ -55,7 +50,8 @@ def test_full_windows_are_the_full_search_bit_for_bit(paths: int, border_cost: f
                                                      dtype: type, threads: int) -> None:
     """A margin wider than the range gives every pixel the full range: the coarse search
     is then the full one, every output identical (NaNs included)."""
-    left, right = (a.astype(dtype) for a in _pair(h=41, w=67, seed=1))
+    h, w = kernel_size((41, 67), (9, 29))
+    left, right = (a.astype(dtype) for a in _pair(h=h, w=w, seed=1))
     common: dict[str, Any] = {'disparity_range': 12, 'min_disparity': -2,
                               'census_width': 5, 'census_height': 5, 'paths': paths,
                               'border_cost': border_cost}
@@ -76,6 +72,7 @@ def test_full_windows_are_the_full_search_bit_for_bit(paths: int, border_cost: f
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('paths', [8, 5])
 @pytest.mark.parametrize('border_cost', [0.0, 3.5])
 @pytest.mark.parametrize('subpixel', ['parabola', 'equiangular'])
@@ -85,7 +82,7 @@ def test_random_windows_match_the_reference(paths: int, border_cost: float, subp
     """Costs, border statistic, aggregation and both views' selection over random windows
     against the plain references run on the full volume with every cell outside the
     windows at a cost no path can afford."""
-    left, right = _pair(seed=seed)
+    left, right = _pair(*kernel_size((23, 37), (9, 19)), seed=seed)
     h, w = left.shape
     n, dmin = 10, -1
     lo, wid = _windows(h, w, n, seed)
@@ -188,8 +185,9 @@ def test_the_flat_volumes_grow_but_never_past_memory_mb() -> None:
                                        memory_mb=memory_mb))
         matcher.match(left, right)
         assert matcher.fallbacks == 0
-        flat = matcher._ranged_buf  # the sizes are the point here
-        assert flat['cost'].size == flat['partial'].size == grown
+        flat = matcher.workspaces.ranged  # the sizes are the point here
+        assert flat is not None
+        assert flat.cost.size == flat.partial.size == grown
 
 
 def test_tight_windows_when_the_aligned_ones_do_not_fit() -> None:
@@ -200,7 +198,8 @@ def test_tight_windows_when_the_aligned_ones_do_not_fit() -> None:
                               'disparity_search': 'coarse', 'search_margin': 1.0}
     roomy = SgmMatcher(SgmParams(**common))
     roomy.match(left, right)
-    coarse = roomy._coarse._buf['disparity']  # the half-resolution pass's output
+    coarse = roomy.coarse.half_disparity  # the half-resolution pass's output
+    assert coarse is not None
     tight = search_ranges(coarse, left.shape, min_disparity=0, disparity_range=40, margin=1.0,
                           outside=0.25 * 40)[1].sum()
     aligned = roomy.search_cells * left.size * 40

@@ -41,6 +41,7 @@ def _shifted(ref: np.ndarray, shift: float, width: int, margin: int) -> np.ndarr
     return cv2.remap(ref, mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize(('window', 'margin'), [(3, 0), (5, 4), (7, 0), (9, 6), (15, 3)])
 def test_the_kernel_equals_the_plain_definition(window: int, margin: int) -> None:
     """Every path: boxes of 3 m (summed as triples) and others, with and without margins,

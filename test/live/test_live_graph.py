@@ -30,7 +30,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
-from depth_nodes.core.sgm.matcher import SgmMatcher, SgmParams
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.graph.description import load_graph_config
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array

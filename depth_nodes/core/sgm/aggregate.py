@@ -25,24 +25,13 @@ far better here: the downward sweep of a VGA frame with 128 disparities took 24 
 against 75 ms as a plain ``njit`` function (same code, one thread, measured on this
 package's 2-core machine; the cause was not pinned down: not aliasing, error model or
 fast-math). Run from several threads at once, this needs a thread-safe numba threading
-layer (OpenMP or TBB, see ``matcher.py``), and each thread set to one numba thread.
-
-NO_NRT: the selection and cost-row kernels, which take a view of an array for every pixel
-(``cost[y, x]``, ``total[x]``), are compiled with numba's ``_nrt=False``: no reference
-counting (:func:`no_nrt_kernel`). With it, numba increments and decrements the parent
-array's count (an atomic operation) around every view it cannot prove short-lived;
-measured with ``perf`` on one thread (640x480, 128 disparities, 8 paths), those two calls
-took 19 % of a frame. Such a kernel cannot allocate: its scratch comes from its caller.
-``_nrt`` is an internal option of numba (pinned in ``requirements/constraints.txt``).
+layer (OpenMP or TBB, see ``bands.py``), and each thread set to one numba thread.
 
 P2 may adapt to the image: P2' = max(P1, P2 / (1 + |I(p) - I(p-r)| / scale)), with the
 intensity step truncated to an integer (exact for camera images), looked up in a table.
 """
 
 from __future__ import annotations
-
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
 
 import numpy as np
 from numba import njit, prange
@@ -55,7 +44,6 @@ SENTINEL = 32768
 
 U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
-_F = TypeVar('_F', bound=Callable[..., Any])
 
 #: Path directions (dx, dy) swept top to bottom; the bottom-to-top sweep mirrors them.
 #: 4 paths = 2 horizontal + 2 of these, 8 = 2 + 6, 16 = 2 + 14. 5 paths = 2 horizontal + these
@@ -70,12 +58,6 @@ VERTICAL_DIRECTIONS = {
 #: stored, so the (H, W, D) uint16 volume and the second pass over the cost volume are saved
 #: (the directions of OpenCV's MODE_SGBM; 8 paths are its MODE_HH).
 SINGLE_PASS = frozenset({5})
-
-
-def no_nrt_kernel(*, parallel: bool = False) -> Callable[[_F], _F]:
-    """``njit(cache=True, nogil=True)`` without reference counting (see NO_NRT)."""
-    options: Any = {'cache': True, 'nogil': True, 'parallel': parallel, '_nrt': False}
-    return cast(Callable[[_F], _F], njit(**options))
 
 
 def p2_table(p1: int, p2: int, scale: float, levels: int = 65536) -> NDArray[np.int64]:
@@ -162,7 +144,7 @@ def path_step(cost: U8, prev: U16, mprev: int, p1: int, p2: int, cur: U16) -> in
 
 
 @njit(cache=True, nogil=True, inline='always')
-def _ring(lb0: U16, lb1: U16, lb2: U16, index: int) -> U16:
+def ring_slot(lb0: U16, lb1: U16, lb2: U16, index: int) -> U16:
     """Ring slot ``index`` (0, 1 or 2) of the three L-row arrays."""
     if index == 0:
         return lb0
@@ -214,7 +196,7 @@ def sweep_down(cost: U8, image: NDArray[np.float32], y0: int, rows: int,
             i = rows - 1 - r if upward else r
             y = y0 + i
             ring = y % 3
-            cur_ring = _ring(lb0, lb1, lb2, ring)
+            cur_ring = ring_slot(lb0, lb1, lb2, ring)
             for x in range(w):
                 out = partial[i, x]
                 for j in range(ndir):
@@ -226,7 +208,7 @@ def sweep_down(cost: U8, image: NDArray[np.float32], y0: int, rows: int,
                     else:
                         pring = yp % 3
                         p2e = table_p2(p2, p2_table, image[y, x], image[yp, xp])
-                        best = path_step(cost[i, x], _ring(lb0, lb1, lb2, pring)[j, xp],
+                        best = path_step(cost[i, x], ring_slot(lb0, lb1, lb2, pring)[j, xp],
                                          int(mbuf[j, pring, xp]), p1, p2e, cur)
                     mbuf[j, ring, x] = best
                     store_path(cur, out, accumulate or j > 0)

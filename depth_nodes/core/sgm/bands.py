@@ -64,7 +64,7 @@ def band_rows(height: int, width: int, disparities: int, *, memory_mb: float,
 
     The spare share is what the costs of the rows below a band took when its upward paths
     read them from the band's buffer; they now pass a few rows at a time
-    (``matcher.OVERLAP_CHUNK``). Sizing the bands as tall as the whole budget allows was
+    (``workspace.OVERLAP_CHUNK``). Sizing the bands as tall as the whole budget allows was
     measured to raise the peak at 1920x1080 / 256 disparities from 409 to 455 MB (the
     matcher's other buffers grow with the disparity range too), so the share stays spare.
     """
@@ -92,7 +92,7 @@ class Task:
     priority: int = 0
 
 
-def _worker_cpus(threads: int, allowed: set[int]) -> list[int]:
+def worker_cpus(threads: int, allowed: set[int]) -> list[int]:
     """The CPU each of ``threads`` workers runs on while they match a frame, when the
     workers are exactly as many as the CPUs ``allowed`` (the calling thread's set): one
     each. Otherwise none: no pinning.
@@ -149,7 +149,7 @@ def run_tasks(tasks: Sequence[Task], threads: int) -> None:
     errors: list[BaseException] = []
 
     own_cpus = os.sched_getaffinity(0) if hasattr(os, 'sched_getaffinity') else set()
-    cpus = _worker_cpus(threads, own_cpus)
+    cpus = worker_cpus(threads, own_cpus)
 
     def work(worker: int) -> None:
         numba.set_num_threads(1)  # each task is one thread's (ONE_THREAD_GUFUNC)

@@ -7,7 +7,7 @@ pass over the image. A left pixel ``x`` with disparity ``d`` is kept when
 * its right pixel ``xr = round(x - d)`` is inside the image and the right view there
   agrees, ``|d - d_right(xr)| <= max_diff`` (``max_diff <= 0`` skips this test), or
 * ``xr`` is outside the image (the disparity was extrapolated from the neighbours, see
-  ``cost.fill_outside``) by at most ``max_outside`` px.
+  ``border.fill_outside``) by at most ``max_outside`` px.
 
 Everything else becomes NaN. Each kernel here has a plain numpy reference.
 """

@@ -1,20 +1,14 @@
-"""Matching costs: census transform + Hamming distance, absolute difference and
-Birchfield-Tomasi, and their weighted sum, as a (H, W, D) uint8 cost volume.
+"""Matching costs: the census Hamming distance, absolute difference and Birchfield-Tomasi,
+and their weighted sum, as a (H, W, D) uint8 cost volume, or any band of its rows.
 
 Layout: the disparity axis is innermost and contiguous; index ``k`` of the volume is the
 disparity ``min_disparity + k``. A disparity whose right pixel ``x - d`` falls outside the
-image gets :data:`OUT_OF_RANGE_COST`, the largest cost, so it is never preferred; the
-matcher may then replace it with a neutral cost (:func:`fill_outside`, scaled by
-:func:`mean_best_cost`) so that the left border strip takes its disparity from its
-neighbours instead of being forced to one inside the image.
+image gets :data:`OUT_OF_RANGE_COST`, the largest cost, so it is never preferred (the
+matcher may give those cells a neutral cost instead: ``border.py``).
 
-Radiometry: the census compares a pixel with its own neighbours, so a gain or offset
-between the cameras does not change it; the intensity term does. ``match_brightness``
-maps the right image's mean and standard deviation onto the left's before that term
-(:func:`matched_brightness`): a 20% gain difference otherwise made census + BT wrong on
-most pixels of the Middlebury pairs.
-
-Every numba kernel here has a plain numpy reference (``*_reference``) that the tests
+The census is :mod:`~depth_nodes.core.sgm.census`'s; the intensity term may be taken on a
+brightness-matched right image (:mod:`~depth_nodes.core.sgm.brightness`). Every numba
+kernel here has a plain numpy reference (:func:`cost_volume_reference`) that the tests
 compare it with.
 """
 
@@ -23,163 +17,25 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
-from numba import njit, prange, types
-from numba.extending import intrinsic
+from numba import njit
 from numpy.typing import NDArray
 
-from depth_nodes.core.sgm.aggregate import no_nrt_kernel
-from depth_nodes.errors import ArgumentError
+from depth_nodes.core.jit import no_nrt_kernel
+from depth_nodes.core.sgm.brightness import matched_brightness
+from depth_nodes.core.sgm.census import (
+    Census,
+    census_dtype,
+    census_transform,
+    census_transform_reference,
+    popcount,
+)
 
 #: Cost of a disparity whose right pixel lies outside the image.
 OUT_OF_RANGE_COST = 255
 
 U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
-U64 = NDArray[np.uint64]
-#: A census image: uint32 or uint64 (:func:`census_dtype`).
-Census = NDArray[np.unsignedinteger[Any]]
-
-
-# ----------------------------------------------------------------------------- census
-def census_dtype(window: tuple[int, int]) -> type[np.unsignedinteger[Any]]:
-    """uint32 when the window's neighbours fit 32 bits (5x5: 24), else uint64.
-
-    The cost kernel then runs the Hamming distance on 32-bit lanes, twice as many per
-    vector as 64-bit ones.
-    """
-    return np.uint32 if window[0] * window[1] - 1 <= 32 else np.uint64
-
-
-@njit(cache=True, nogil=True)
-def _census_row(padded: NDArray[Any], y: int, ry: int, rx: int, width: int,
-                mirror: bool, bits: Census) -> None:
-    """Census of one row of a border-padded image, accumulated neighbour by neighbour so
-    the loop over x vectorises. ``mirror`` takes the neighbours in mirrored x order (for
-    an image flipped left-right, see :func:`census_transform`)."""
-    for x in range(width):
-        bits[x] = 0
-    centre = padded[y + ry, rx:rx + width]
-    for dy in range(-ry, ry + 1):
-        for dx in range(-rx, rx + 1):
-            if dy == 0 and dx == 0:
-                continue
-            sx = -dx if mirror else dx
-            # row views indexed by the loop counter alone: the loop vectorises
-            neighbour = padded[y + ry + dy, rx + sx:rx + sx + width]
-            for x in range(width):
-                darker = neighbour[x] < centre[x]
-                bits[x] = (bits[x] << np.uint64(1)) | np.uint64(darker)
-
-
-@njit(parallel=True, cache=True, nogil=True)
-def _census_kernel(padded: NDArray[Any], win_h: int, win_w: int, mirror: bool,
-                   out: Census) -> None:
-    h, w = out.shape
-    for y in prange(h):
-        _census_row(padded, y, win_h // 2, win_w // 2, w, mirror, out[y])
-
-
-def census_transform(image: NDArray[np.generic], window: tuple[int, int],
-                     out: Census | None = None, *, mirrored: bool = False) -> Census:
-    """Census signature of every pixel: one bit per window neighbour, set when the
-    neighbour is darker than the centre (borders replicated).
-
-    Args:
-        image: (H, W) grey image (any real dtype).
-        window: (height, width), odd, at most 63 neighbours (e.g. 9x7).
-        out: Optional (H, W) buffer to fill, of :func:`census_dtype` or uint64.
-        mirrored: Fill ``out`` with the census mirrored left-right (``out[:, ::-1]`` is
-            then the plain census, same bit order); the cost kernel reads the right
-            image's census this way.
-    """
-    img = np.asarray(image)
-    if img.dtype not in (np.uint8, np.uint16):  # integers are compared as they are
-        img = img.astype(np.float32, copy=False)
-    if mirrored:
-        img = img[:, ::-1]
-    if out is None:
-        out = np.empty(img.shape, census_dtype(window))
-    if np.iinfo(out.dtype).bits < window[0] * window[1] - 1:
-        raise ArgumentError(f'a {out.dtype} census holds fewer bits than a {window[0]}x'
-                            f'{window[1]} window has neighbours')
-    ry, rx = window[0] // 2, window[1] // 2
-    padded = np.pad(img, ((ry, ry), (rx, rx)), mode='edge')
-    _census_kernel(padded, window[0], window[1], mirrored, out)
-    return out
-
-
-def census_transform_reference(image: NDArray[np.generic], window: tuple[int, int]) -> U64:
-    """Plain numpy census transform (same bit order as the kernel)."""
-    img = np.asarray(image, dtype=np.float32)
-    ry, rx = window[0] // 2, window[1] // 2
-    padded = np.pad(img, ((ry, ry), (rx, rx)), mode='edge')
-    h, w = img.shape
-    out = np.zeros(img.shape, np.uint64)
-    for dy in range(-ry, ry + 1):
-        for dx in range(-rx, rx + 1):
-            if dy == 0 and dx == 0:
-                continue
-            neighbour = padded[ry + dy:ry + dy + h, rx + dx:rx + dx + w]
-            out = (out << np.uint64(1)) | (neighbour < img).astype(np.uint64)
-    return out
-
-
-# ------------------------------------------------------------------ radiometry
-#: Bounds of the gain :func:`matched_brightness` applies (a flat or nearly black image
-#: would otherwise be stretched without limit).
-GAIN_LIMITS = (0.25, 4.0)
-
-
-def matched_brightness(left: NDArray[np.generic], right: NDArray[np.generic]) -> NDArray[Any]:
-    """``right`` with the mean and standard deviation of ``left`` (a global gain and offset).
-
-    Integer images stay of their dtype (rounded and clipped to its range, through a lookup
-    table); others become float32. The gain is bounded by :data:`GAIN_LIMITS`.
-    """
-    left, right = np.asarray(left), np.asarray(right)
-    (ml, sl), (mr, sr) = (_mean_std(img) for img in (left, right))
-    gain = 1.0 if sr <= 1e-6 or sl <= 1e-6 else min(max(sl / sr, GAIN_LIMITS[0]),
-                                                      GAIN_LIMITS[1])
-    if right.dtype in (np.uint8, np.uint16):
-        top = 255 if right.dtype == np.uint8 else 65535
-        levels = np.arange(top + 1, dtype=np.float64)
-        table = np.clip(np.rint((levels - mr) * gain + ml), 0, top).astype(right.dtype)
-        mapped_levels: NDArray[Any] = table[right]
-        return mapped_levels
-    mapped = (right.astype(np.float64) - mr) * gain + ml
-    if np.issubdtype(right.dtype, np.integer):
-        info = np.iinfo(right.dtype.name)
-        return np.clip(np.rint(mapped), info.min, info.max).astype(right.dtype)
-    return mapped.astype(np.float32)
-
-
-def _mean_std(image: NDArray[Any]) -> tuple[float, float]:
-    """Mean and standard deviation of an image (OpenCV's single pass where it can)."""
-    if image.dtype in (np.uint8, np.uint16, np.float32) and image.ndim == 2:
-        mean, std = cv2.meanStdDev(np.ascontiguousarray(image))
-        return float(mean[0, 0]), float(std[0, 0])
-    values = image.astype(np.float64)
-    return float(values.mean()), float(values.std())
-
-
-# ------------------------------------------------------------------ intensity costs
-def _popcount_intrinsic(typingctx: Any, value: Any) -> Any:
-    """Number of set bits of a uint16, uint32 or uint64, in the same type (LLVM's ctpop:
-    one instruction per vector where the CPU has one, e.g. AVX-512 VPOPCNTDQ / BITALG)."""
-    if value not in (types.uint16, types.uint32, types.uint64):
-        return None
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        return builder.ctpop(args[0])
-
-    return value(value), codegen
-
-
-_popcount: Any = intrinsic(_popcount_intrinsic)
-#: The same, for the other kernels that compare census signatures (speckle matching).
-popcount: Any = _popcount
 
 
 @njit(cache=True, nogil=True)
@@ -200,12 +56,12 @@ def _half_sample_range(img: NDArray[np.float32]) -> tuple[NDArray[np.float32],
 
 
 @njit(cache=True, nogil=True, inline='always')
-def _pixel_costs(cl: np.unsignedinteger[Any], census_rm: NDArray[np.unsignedinteger[Any]],
-                 il: np.float32, lo_l: np.float32, hi_l: np.float32,
-                 right_m: NDArray[np.float32], lo_rm: NDArray[np.float32],
-                 hi_rm: NDArray[np.float32], xm0: int, k_lo: int, k_hi: int,
-                 census_weight: int, intensity_weight: int, use_bt: bool, truncation: int,
-                 out: U8) -> None:
+def pixel_costs(cl: np.unsignedinteger[Any], census_rm: NDArray[np.unsignedinteger[Any]],
+                il: np.float32, lo_l: np.float32, hi_l: np.float32,
+                right_m: NDArray[np.float32], lo_rm: NDArray[np.float32],
+                hi_rm: NDArray[np.float32], xm0: int, k_lo: int, k_hi: int,
+                census_weight: int, intensity_weight: int, use_bt: bool, truncation: int,
+                out: U8) -> None:
     """out[k] = min(census_weight * hamming + intensity_weight * round(min(AD or BT,
     truncation)), 254) for k in [k_lo, k_hi], the right pixel of k being xr0 - k.
 
@@ -215,7 +71,7 @@ def _pixel_costs(cl: np.unsignedinteger[Any], census_rm: NDArray[np.unsignedinte
     the intensity term in float32 (a float64 constant would halve the vector width). A
     zero weight skips its term. Weights and truncation are clamped to 255, which changes
     no result (any term reaching 255 is clipped to 254 anyway) and keeps the int32 sum
-    far from overflow.
+    far from overflow. (The coarse search's window kernels call it too: ``ranged.py``.)
     """
     zero = np.float32(0.0)
     half = np.float32(0.5)
@@ -227,7 +83,7 @@ def _pixel_costs(cl: np.unsignedinteger[Any], census_rm: NDArray[np.unsignedinte
         xm = np.uint64(xm0 + k)  # unsigned: no negative-index wraparound check
         value = np.int32(0)
         if census_weight:
-            value = np.int32(cw * np.int32(_popcount(cl ^ census_rm[xm])))
+            value = np.int32(cw * np.int32(popcount(cl ^ census_rm[xm])))
         if intensity_weight:
             ir = right_m[xm]
             if use_bt:
@@ -275,9 +131,9 @@ def _cost_rows(census_l: NDArray[np.unsignedinteger[Any]],
             if k_lo > k_hi:
                 continue
             xm0 = w - 1 - (x - min_disparity)  # mirrored index of k = 0's right pixel
-            _pixel_costs(census_l[y, x], census_rm[y], left[y, x], lo_l[y, x], hi_l[y, x],
-                         right_m[y], lo_rm[y], hi_rm[y], xm0, k_lo, k_hi,
-                         census_weight, intensity_weight, use_bt, truncation, cell)
+            pixel_costs(census_l[y, x], census_rm[y], left[y, x], lo_l[y, x], hi_l[y, x],
+                        right_m[y], lo_rm[y], hi_rm[y], xm0, k_lo, k_hi,
+                        census_weight, intensity_weight, use_bt, truncation, cell)
 
 
 @njit(cache=True, nogil=True)
@@ -298,13 +154,13 @@ def _doubled_half_sample_range(img: U8, twice: NDArray[np.int16], lo: NDArray[np
 
 
 @njit(cache=True, nogil=True, inline='always')
-def _pixel_costs_16(cl_lo: np.uint16, cl_hi: np.uint16, rm_lo: NDArray[np.uint16],
-                    rm_hi: NDArray[np.uint16], il: np.int16, lo_l: np.int16, hi_l: np.int16,
-                    right_m: NDArray[np.int16], lo_rm: NDArray[np.int16],
-                    hi_rm: NDArray[np.int16], xm0: int, k_lo: int, k_hi: int,
-                    census_weight: int, intensity_weight: int, use_bt: bool, truncation: int,
-                    out: U8) -> None:
-    """:func:`_pixel_costs` for uint8 images, on 16-bit lanes (twice as many per vector).
+def pixel_costs_16(cl_lo: np.uint16, cl_hi: np.uint16, rm_lo: NDArray[np.uint16],
+                   rm_hi: NDArray[np.uint16], il: np.int16, lo_l: np.int16, hi_l: np.int16,
+                   right_m: NDArray[np.int16], lo_rm: NDArray[np.int16],
+                   hi_rm: NDArray[np.int16], xm0: int, k_lo: int, k_hi: int,
+                   census_weight: int, intensity_weight: int, use_bt: bool, truncation: int,
+                   out: U8) -> None:
+    """:func:`pixel_costs` for uint8 images, on 16-bit lanes (twice as many per vector).
 
     Intensities come doubled (2 I and 2 x the half-sample range), so BT and AD are integers
     and ``(min(2 diff, 2 cap) + 1) >> 1`` is exactly the float path's ``int(min(diff, cap)
@@ -322,8 +178,8 @@ def _pixel_costs_16(cl_lo: np.uint16, cl_hi: np.uint16, rm_lo: NDArray[np.uint16
     if census_weight and intensity_weight and use_bt:
         for k in range(k_lo, k_hi + 1):
             xm = np.uint64(xm0 + k)  # unsigned: no negative-index wraparound check
-            bits = np.uint16(_popcount(np.uint16(cl_lo ^ rm_lo[xm]))
-                             + _popcount(np.uint16(cl_hi ^ rm_hi[xm])))
+            bits = np.uint16(popcount(np.uint16(cl_lo ^ rm_lo[xm]))
+                             + popcount(np.uint16(cl_hi ^ rm_hi[xm])))
             ir = right_m[xm]
             d_left = max(zero, np.int16(max(np.int16(il - hi_rm[xm]),
                                             np.int16(lo_rm[xm] - il))))
@@ -336,8 +192,8 @@ def _pixel_costs_16(cl_lo: np.uint16, cl_hi: np.uint16, rm_lo: NDArray[np.uint16
         xm = np.uint64(xm0 + k)  # unsigned: no negative-index wraparound check
         value = np.uint16(0)
         if census_weight:
-            bits = np.uint16(_popcount(np.uint16(cl_lo ^ rm_lo[xm]))
-                             + _popcount(np.uint16(cl_hi ^ rm_hi[xm])))
+            bits = np.uint16(popcount(np.uint16(cl_lo ^ rm_lo[xm]))
+                             + popcount(np.uint16(cl_hi ^ rm_hi[xm])))
             value = min(np.uint16(cw * bits), top)
         if intensity_weight:
             ir = right_m[xm]
@@ -361,7 +217,7 @@ def _cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
                   min_disparity: int, census_weight: int, intensity_weight: int,
                   use_bt: bool, truncation: int, out: U8, rm_lo: U16, rm_hi: U16) -> None:
     """:func:`_cost_rows` for uint8 images and a census of at most 32 bits (doubled
-    intensities, see :func:`_pixel_costs_16`); ``rm_lo`` and ``rm_hi`` are (W,) uint16
+    intensities, see :func:`pixel_costs_16`); ``rm_lo`` and ``rm_hi`` are (W,) uint16
     scratch for the right census row's halves (:func:`right_halves`)."""
     rows, w = out.shape[:2]
     for i in range(rows):
@@ -377,10 +233,10 @@ def _cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
                 continue
             xm0 = w - 1 - (x - min_disparity)  # mirrored index of k = 0's right pixel
             cl = census_l[y, x]
-            _pixel_costs_16(np.uint16(cl & np.uint32(0xFFFF)), np.uint16(cl >> np.uint32(16)),
-                            rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
-                            lo_rm[y], hi_rm[y], xm0, k_lo, k_hi, census_weight,
-                            intensity_weight, use_bt, truncation, cell)
+            pixel_costs_16(np.uint16(cl & np.uint32(0xFFFF)), np.uint16(cl >> np.uint32(16)),
+                           rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
+                           lo_rm[y], hi_rm[y], xm0, k_lo, k_hi, census_weight,
+                           intensity_weight, use_bt, truncation, cell)
 
 
 @dataclass(frozen=True)
@@ -409,7 +265,7 @@ class CostInputs:
 
 def right_halves(width: int) -> tuple[U16, U16]:
     """Scratch of the 16-bit cost kernels: the right census row as two 16-bit halves (they
-    allocate nothing themselves, ``aggregate.NO_NRT``)."""
+    allocate nothing themselves, ``jit.NO_NRT``)."""
     return np.empty(width, np.uint16), np.empty(width, np.uint16)
 
 
@@ -460,7 +316,7 @@ def cost_volume(left: NDArray[np.generic], right: NDArray[np.generic], *,
     clipped to 254; out-of-image disparities cost :data:`OUT_OF_RANGE_COST`.
 
     A uint8 pair with a census of at most 32 bits runs on 16-bit lanes (doubled integer
-    intensities, :func:`_pixel_costs_16`): 0.8x the time of the float kernel, same volume.
+    intensities, :func:`pixel_costs_16`): 0.8x the time of the float kernel, same volume.
 
     Args:
         left: (H, W) rectified left grey image.
@@ -539,86 +395,3 @@ def cost_volume_reference(left: NDArray[np.generic], right: NDArray[np.generic],
                 np.int64)
         out[:, xl, k] = np.minimum(cost, OUT_OF_RANGE_COST - 1)
     return out
-
-
-# ---------------------------------------------------------------- out-of-image cells
-@njit(cache=True, nogil=True)
-def _best_cost_sum(cost: U8, x_lo: int, x_hi: int, row_step: int) -> float:
-    """Sum over every ``row_step``-th row and the columns [x_lo, x_hi) of min_d cost."""
-    total = 0.0
-    for y in range(0, cost.shape[0], row_step):
-        row = 0.0
-        for x in range(x_lo, x_hi):
-            best = np.uint8(255)
-            cell = cost[y, x]
-            for k in range(cell.shape[0]):
-                best = min(best, cell[k])
-            row += best
-        total += row
-    return total
-
-
-def _full_range_columns(w: int, n: int, min_disparity: int) -> tuple[int, int]:
-    """The columns where every disparity stays inside the image (all when there are none)."""
-    x_lo = max(0, min_disparity + n - 1)
-    x_hi = min(w, w + min_disparity)
-    return (x_lo, x_hi) if x_lo < x_hi else (0, w)
-
-
-def mean_best_cost(cost: U8, min_disparity: int, *, row_step: int = 4) -> float:
-    """Mean over pixels of the smallest cost over d: how much a match usually costs in
-    this frame (its noise and texture), from every ``row_step``-th row and the columns
-    where every disparity stays inside the image. Falls back to every column when no
-    column has the full range (the mean then includes out-of-image cells)."""
-    h, w, n = cost.shape
-    x_lo, x_hi = _full_range_columns(w, n, min_disparity)
-    step = max(1, row_step)
-    rows = (h + step - 1) // step
-    total = float(_best_cost_sum(cost, x_lo, x_hi, step))
-    return float(total / max(1, rows * (x_hi - x_lo)))
-
-
-def sampled_best_cost_sum(inputs: CostInputs, ys: range, buffer: U8) -> float:
-    """:func:`mean_best_cost`'s sum over the rows ``ys`` (before dividing), their costs
-    computed ``len(buffer)`` rows at a time into ``buffer``: the whole volume is never
-    needed. Exact (integer sums in float64), so the mean equals mean_best_cost's."""
-    w, n = buffer.shape[1:]
-    x_lo, x_hi = _full_range_columns(w, n, inputs.min_disparity)
-    total = 0.0
-    for y in ys:
-        inputs.rows(y, buffer[:1])
-        total += float(_best_cost_sum(buffer[:1], x_lo, x_hi, 1))
-    return total
-
-
-def mean_best_count(h: int, w: int, n: int, min_disparity: int, row_step: int) -> int:
-    """How many pixels :func:`mean_best_cost` averages over."""
-    x_lo, x_hi = _full_range_columns(w, n, min_disparity)
-    return max(1, (h + row_step - 1) // row_step * (x_hi - x_lo))
-
-
-@njit(cache=True, nogil=True)
-def _fill_outside(cost: U8, min_disparity: int, value: np.uint8) -> None:
-    h, w, n = cost.shape
-    # only the columns near the borders have cells outside: [0, lo) and [hi, w)
-    lo = min(w, max(0, min_disparity + n - 1))
-    hi = max(lo, min(w, w + min_disparity))
-    for y in range(h):
-        for i in range(lo + w - hi):
-            x = i if i < lo else hi + i - lo
-            xr0 = x - min_disparity
-            k_lo = max(0, xr0 - (w - 1))
-            k_hi = min(n - 1, xr0)
-            cell = cost[y, x]
-            for k in range(0, min(k_lo, n)):
-                cell[k] = value
-            for k in range(max(k_hi + 1, 0), n):
-                cell[k] = value
-
-
-def fill_outside(cost: U8, min_disparity: int, value: int) -> None:
-    """Set every cell whose right pixel ``x - min_disparity - k`` lies outside the image
-    to ``value`` (0..255), in place (any band of rows of the volume)."""
-    if not 0 <= value <= 255:
-        raise ArgumentError(f'value must be in 0..255, got {value}')
-    _fill_outside(cost, int(min_disparity), np.uint8(value))

@@ -1,11 +1,9 @@
-"""Coarse-to-fine SGM: every pixel searches only its own disparity window.
+"""SGM over windows: every pixel searches only its own disparity window.
 
-The idea is tSGM's (Rothermel et al. 2012, "SURE: Photogrammetric surface reconstruction
-from imagery"): match the pair at half resolution over half the range, then give each
-full-resolution pixel the window of disparities its coarse neighbourhood found, widened
-by a margin (:func:`search_ranges`). Only the cells of those windows get a cost, are
-aggregated and are selected from: 22 - 49 % of the full volume's cells in the frames
-measured (docs/speed.md).
+The coarse search (``coarse.py``, tSGM's idea) gives each pixel the window of
+disparities its half-resolution neighbourhood found; only the cells of those windows get
+a cost, are aggregated and are selected from: 22 - 49 % of the full volume's cells in the
+frames measured (docs/speed.md).
 
 Storage: pixel (y, x) holds its window's ``wid[y, x]`` cells, disparity indices
 ``lo[y, x]`` .. ``lo[y, x] + wid[y, x] - 1``, at ``base[y * W + x]`` of a flat array
@@ -28,28 +26,27 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import cv2
 import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
+from depth_nodes.core.jit import no_nrt_kernel
 from depth_nodes.core.sgm.aggregate import (
     SENTINEL,
-    _ring,
-    no_nrt_kernel,
     path_start,
     path_step,
+    ring_slot,
     store_path,
     table_p2,
 )
 from depth_nodes.core.sgm.cost import (
     OUT_OF_RANGE_COST,
     CostInputs,
-    _pixel_costs,
-    _pixel_costs_16,
+    pixel_costs,
+    pixel_costs_16,
     right_halves,
 )
-from depth_nodes.core.sgm.select import _key, _keyed_min, select_pixel, subpixel_offset
+from depth_nodes.core.sgm.select import cost_key, keyed_min, select_pixel, subpixel_offset
 
 U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
@@ -57,110 +54,11 @@ I32 = NDArray[np.int32]
 I64 = NDArray[np.int64]
 F32 = NDArray[np.float32]
 
-#: Windows start and end on multiples of this many disparities when the volumes still
-#: fit: the kernels' loops then meet fewer distinct trip counts and offsets (the
-#: downward sweep of a VGA frame ran 27 % faster for 16 % more cells).
-ALIGN = 8
 #: Bytes a window's cell takes: 1 of cost, 2 of the vertical paths' sum.
 CELL_BYTES = 3
-#: Coarse pixels either side whose disparities a fine pixel's window spans (5 x 5 coarse,
-#: about 10 x 10 fine pixels: a depth edge near the pixel puts both sides in its window).
-NEAR_RADIUS = 2
-#: Where no coarse disparity within :data:`NEAR_RADIUS` survived the checks (occlusions,
-#: no texture): the span of the valid ones within this radius; the full range if none.
-WIDE_RADIUS = 8
 
 
-# ------------------------------------------------------------------------ windows
-def coarse_size(h: int, w: int) -> tuple[int, int]:
-    """(height, width) of the half-resolution pass of an (h, w) frame."""
-    return (h + 1) // 2, (w + 1) // 2
-
-
-def coarse_window(min_disparity: int, disparity_range: int) -> tuple[int, int]:
-    """(min_disparity, disparity_range) of the half-resolution pass: every full-resolution
-    disparity d has d / 2 inside it."""
-    lo = math.floor(min_disparity / 2)
-    hi = math.ceil((min_disparity + disparity_range - 1) / 2)
-    return lo, hi - lo + 1
-
-
-def _span(valid: NDArray[np.bool_], values: F32, radius: int) -> tuple[F32, F32]:
-    """Min and max of ``values`` where ``valid`` within a (2 radius + 1)^2 square (+inf and
-    -inf where the square holds no valid value)."""
-    size = 2 * radius + 1
-    kernel = np.ones((size, size), np.uint8)
-    low = cv2.erode(np.where(valid, values, np.float32(np.inf)).astype(np.float32), kernel,
-                    borderType=cv2.BORDER_REPLICATE)
-    high = cv2.dilate(np.where(valid, values, np.float32(-np.inf)).astype(np.float32),
-                      kernel, borderType=cv2.BORDER_REPLICATE)
-    return low.astype(np.float32), high.astype(np.float32)
-
-
-def search_ranges(coarse: F32, shape: tuple[int, int], *, min_disparity: int,
-                  disparity_range: int, margin: float, outside: float = 0.0,
-                  align: int = 1) -> tuple[I32, I32]:
-    """Each full-resolution pixel's window from the half-resolution disparity ``coarse``.
-
-    A pixel's window spans twice the smallest and largest valid coarse disparity within
-    :data:`NEAR_RADIUS` of its coarse pixel, widened by ``margin`` px either side; where
-    none is valid, those within :data:`WIDE_RADIUS`; where none is either, the full range.
-    In the left border strip, where some disparities match outside the right image, a
-    window starts at disparity index 0 and reaches at least the largest disparity that
-    may be published there (its match ``outside`` px past the border): the coarse pass
-    is least reliable there, and the disparities are extrapolated from the neighbours
-    (``cost.fill_outside``). Teddy's bad-2 after the shipped graph's cross-check (5
-    paths): 0.0584 with the full search, 0.0686 with the coarse windows in the strip,
-    0.0630 with these, 0.0586 with the full range there (whose volumes at 1280x720 / 256
-    no longer fit the default memory_mb).
-
-    Args:
-        coarse: (ceil(H / 2), ceil(W / 2)) float32 disparity, NaN where invalid.
-        shape: (H, W) of the full-resolution frame.
-        min_disparity: The full-resolution smallest disparity.
-        disparity_range: The full-resolution number of disparities D.
-        margin: Widening either side, full-resolution px.
-        outside: How far past the left image border a disparity's match may lie and the
-            disparity still be published, px (the matcher's border extrapolation).
-        align: Windows start and end on multiples of this many disparity indices (the
-            full range's end excepted): see :data:`ALIGN`.
-
-    Returns:
-        (lo, wid): (H, W) int32 first disparity index (0 .. D - 1) and width (>= 1).
-    """
-    h, w = shape
-    valid = np.isfinite(coarse)
-    values = np.where(valid, coarse, 0).astype(np.float32)
-    low, high = _span(valid, values, NEAR_RADIUS)
-    wide_low, wide_high = _span(valid, values, WIDE_RADIUS)
-    empty = low > high
-    low = np.where(empty, wide_low, low)
-    high = np.where(empty, wide_high, high)
-    full = low > high
-    n = disparity_range
-    with np.errstate(invalid='ignore'):
-        first = np.floor(2.0 * low - margin) - min_disparity
-        last = np.ceil(2.0 * high + margin) - min_disparity
-    first = np.where(full, 0, np.clip(first, 0, n - 1))
-    last = np.where(full, n - 1, np.clip(last, first, n - 1))
-    first = first // align * align
-    last = np.minimum(n - 1, (last // align + 1) * align - 1)
-    lo = _doubled(first.astype(np.int32), h, w)  # pixel (y, x) takes (y // 2, x // 2)'s
-    wid = _doubled((last - first + 1).astype(np.int32), h, w)
-    strip = min(w, max(0, min_disparity + n - 1))  # x - d < 0 for some d: the border strip
-    # there from 0 to the largest disparity that may still be published (or further)
-    top = np.minimum(n, np.arange(strip) - min_disparity + math.floor(outside) + 1)
-    end = np.maximum(lo[:, :strip] + wid[:, :strip], top[None, :])
-    lo[:, :strip] = 0
-    wid[:, :strip] = end
-    return lo, wid
-
-
-def _doubled(coarse: I32, h: int, w: int) -> I32:
-    """Each coarse pixel repeated 2 x 2, cut to (h, w)."""
-    return np.ascontiguousarray(np.repeat(np.repeat(coarse, 2, axis=0), 2, axis=1)[:h, :w])
-
-
+# --------------------------------------------------------------------- flat layout
 def flat_offsets(wid: I32) -> I64:
     """(H W + 1,) int64: where each pixel's cells start in the flat arrays (row-major),
     the last entry their total."""
@@ -212,9 +110,9 @@ def _ranged_cost_rows(census_l: NDArray[Any], census_rm: NDArray[Any], left: F32
             cell, a, b, xm0 = _window_cell(y, x, w, min_disparity, n_disp, lo, wid, base, out)
             if a > b:
                 continue
-            _pixel_costs(census_l[y, x], census_rm[y], left[y, x], lo_l[y, x], hi_l[y, x],
-                         right_m[y], lo_rm[y], hi_rm[y], xm0, a, b, census_weight,
-                         intensity_weight, use_bt, truncation, cell)
+            pixel_costs(census_l[y, x], census_rm[y], left[y, x], lo_l[y, x], hi_l[y, x],
+                        right_m[y], lo_rm[y], hi_rm[y], xm0, a, b, census_weight,
+                        intensity_weight, use_bt, truncation, cell)
 
 
 @no_nrt_kernel()
@@ -236,10 +134,10 @@ def _ranged_cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uin
             if a > b:
                 continue
             cl = census_l[y, x]
-            _pixel_costs_16(np.uint16(cl & np.uint32(0xFFFF)), np.uint16(cl >> np.uint32(16)),
-                            rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
-                            lo_rm[y], hi_rm[y], xm0, a, b, census_weight, intensity_weight,
-                            use_bt, truncation, cell)
+            pixel_costs_16(np.uint16(cl & np.uint32(0xFFFF)), np.uint16(cl >> np.uint32(16)),
+                           rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
+                           lo_rm[y], hi_rm[y], xm0, a, b, census_weight, intensity_weight,
+                           use_bt, truncation, cell)
 
 
 def ranged_costs(inputs: CostInputs, y0: int, rows: int, lo: I32, wid: I32, base: I64,
@@ -255,7 +153,7 @@ def ranged_costs(inputs: CostInputs, y0: int, rows: int, lo: I32, wid: I32, base
 @no_nrt_kernel()
 def ranged_best_cost_sum(cost: U8, lo: I32, wid: I32, base: I64, x_lo: int, x_hi: int,
                          row_step: int) -> float:
-    """``cost.mean_best_cost``'s sum (every ``row_step``-th row, columns [x_lo, x_hi)),
+    """``border.mean_best_cost``'s sum (every ``row_step``-th row, columns [x_lo, x_hi)),
     the minimum taken over each pixel's window."""
     h, w = lo.shape
     total = 0.0
@@ -274,7 +172,7 @@ def ranged_best_cost_sum(cost: U8, lo: I32, wid: I32, base: I64, x_lo: int, x_hi
 @njit(cache=True, nogil=True)
 def ranged_fill_outside(cost: U8, lo: I32, wid: I32, base: I64, y0: int, rows: int,
                         min_disparity: int, n_disp: int, value: int) -> None:
-    """``cost.fill_outside`` on the windows of rows y0 .. y0 + rows - 1."""
+    """``border.fill_outside`` on the windows of rows y0 .. y0 + rows - 1."""
     w = lo.shape[1]
     edge_lo = min(w, max(0, min_disparity + n_disp - 1))
     edge_hi = max(edge_lo, min(w, w + min_disparity))
@@ -325,7 +223,7 @@ def ranged_sweep(cost: U8, base: I64, lo: I32, wid: I32, image: F32, y0: int, ro
         for r in range(rows):
             y = y0 + (rows - 1 - r if upward else r)
             ring = y % 3
-            cur_ring = _ring(lb0, lb1, lb2, ring)
+            cur_ring = ring_slot(lb0, lb1, lb2, ring)
             y_old = y - 3 * sign
             held = 0 <= y_old < h
             for x in range(w):
@@ -345,7 +243,7 @@ def ranged_sweep(cost: U8, base: I64, lo: I32, wid: I32, image: F32, y0: int, ro
                     else:
                         pring = yp % 3
                         p2e = table_p2(p2, p2_table, image[y, x], image[yp, xp])
-                        prev = _ring(lb0, lb1, lb2, pring)[j, xp]
+                        prev = ring_slot(lb0, lb1, lb2, pring)[j, xp]
                         best = path_step(cell, prev[lp:lp + n + 2], int(mbuf[j, pring, xp]),
                                          p1, p2e, cur)
                     mbuf[j, ring, x] = best
@@ -419,13 +317,13 @@ def ranged_select(cost: U8, base: I64, lo: I32, wid: I32, image: F32, partial: U
                 i_lo = max(max(0, xr0 - (w - 1)) - lp, 0)
                 i_hi = min(min(n_disp - 1, xr0) - lp, n - 1)
                 sel_lo, sel_hi = (0, n - 1) if extrapolate else (i_lo, i_hi)
-                key = _keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
+                key = keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
                 k, r = select_pixel(tot, key, sel_lo, sel_hi, subpixel, uniqueness)
                 disparity[y, x] = min_disparity + lp + k
                 ratio[y, x] = r
                 xm0 = w - 1 - xr0 + lp  # mirrored right pixel of entry 0
                 for t in range(i_lo, i_hi + 1):
-                    candidate = _key(tot[np.uint64(t)], lp + t)
+                    candidate = cost_key(tot[np.uint64(t)], lp + t)
                     xm = np.uint64(xm0 + t)
                     keys[xm] = min(keys[xm], candidate)
             for xr in range(w):  # the right view: refine the winners

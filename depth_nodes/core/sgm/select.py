@@ -24,17 +24,10 @@ from typing import Any
 
 import numpy as np
 from numba import njit, prange, types
-from numba.extending import intrinsic
 from numpy.typing import NDArray
 
-from depth_nodes.core.sgm.aggregate import (
-    _ring,
-    no_nrt_kernel,
-    path_start,
-    path_step,
-    store_path,
-    table_p2,
-)
+from depth_nodes.core.jit import intrinsic, no_nrt_kernel, python_function
+from depth_nodes.core.sgm.aggregate import path_start, path_step, ring_slot, store_path, table_p2
 
 U8 = NDArray[np.uint8]
 U16 = NDArray[np.uint16]
@@ -63,12 +56,19 @@ def subpixel_offset(mode: int, left: float, centre: float, right: float) -> floa
     return round(offset / SUBPIXEL_STEP) * SUBPIXEL_STEP
 
 
-def _key_intrinsic(typingctx: Any, cost: Any, k: Any) -> Any:
+def _cost_key_plain(cost: Any, k: Any) -> np.uint32:
+    """:func:`cost_key` in Python (the JIT off)."""
+    return np.uint32((int(cost) << 16) | (int(k) & 0xFFFFFFFF))
+
+
+@intrinsic(_cost_key_plain)
+def cost_key(typingctx: Any, cost: Any, k: Any) -> Any:
     """(uint32(cost) << 16) | uint32(k), computed in 32 bits.
 
     numba widens integer arithmetic to 64 bits, and LLVM then runs the loops that build
     these keys on 8 64-bit lanes per vector; emitted directly in 32 bits they run on 16.
     ``cost`` must be an unsigned integer of at most 16 bits, ``k`` any integer (< 65536).
+    The coarse search's selection (``ranged.py``) builds its right-view keys with it.
     """
     if cost not in (types.uint8, types.uint16) or k not in types.integer_domain:
         return None
@@ -82,17 +82,14 @@ def _key_intrinsic(typingctx: Any, cost: Any, k: Any) -> Any:
     return types.uint32(cost, k), codegen
 
 
-_key: Any = intrinsic(_key_intrinsic)
-
-
 @njit(cache=True, nogil=True, inline='always')
-def _keyed_min(total: U16, k_lo: int, k_hi: int) -> int:
+def keyed_min(total: U16, k_lo: int, k_hi: int) -> int:
     """min over k of (total[k] << 16 | k): the smallest cost and, on ties, the first k, in
     one reduction that vectorises (an argmin loop does not)."""
     best = np.uint32(0xFFFFFFFF)
     for k in range(k_lo, k_hi + 1):
         i = np.uint64(k)  # k >= 0: an unsigned index skips numba's wraparound check
-        best = min(best, _key(total[i], k))
+        best = min(best, cost_key(total[i], k))
     return int(best)
 
 
@@ -125,20 +122,20 @@ def _min_outside(total: U16, k_lo: int, k_hi: int, kbest: int) -> int:
 
 @njit(cache=True, nogil=True, inline='always')
 def _add_rows_keyed_min(total: U16, a: U16, b: U16) -> int:
-    """total += a + b over every k, returning :func:`_keyed_min` of the result over every
+    """total += a + b over every k, returning :func:`keyed_min` of the result over every
     k: one pass instead of two."""
     best = np.uint32(0xFFFFFFFF)
     for k in range(total.shape[0]):
         i = np.uint64(k)
         value = np.uint16(total[i] + a[i] + b[i])
         total[i] = value
-        best = min(best, _key(value, k))
+        best = min(best, cost_key(value, k))
     return int(best)
 
 
 @njit(cache=True, nogil=True, inline='always')
 def _sum_rows_keyed_min(total: U16, part: U16, a: U16, b: U16) -> int:
-    """total = part + a + b over every k, returning :func:`_keyed_min` of the result: the
+    """total = part + a + b over every k, returning :func:`keyed_min` of the result: the
     partial sum is read where it is used, not copied into ``total`` first. (Kept apart from
     :func:`_add_rows_keyed_min`: that one called as this with ``part`` being ``total``
     made the bounded 8-path frame 9 % slower, the loop no longer proven alias-free.)"""
@@ -147,7 +144,7 @@ def _sum_rows_keyed_min(total: U16, part: U16, a: U16, b: U16) -> int:
         i = np.uint64(k)
         value = np.uint16(part[i] + a[i] + b[i])
         total[i] = value
-        best = min(best, _key(value, k))
+        best = min(best, cost_key(value, k))
     return int(best)
 
 
@@ -155,7 +152,7 @@ def _sum_rows_keyed_min(total: U16, part: U16, a: U16, b: U16) -> int:
 def select_pixel(total: U16, key: int, k_lo: int, k_hi: int, subpixel: int,
                  uniqueness: float) -> tuple[float, float]:
     """Winner over k in [k_lo, k_hi]: (k + sub-pixel offset or NaN, best / second best).
-    ``key`` is :func:`_keyed_min` over that range (unused when the range is empty)."""
+    ``key`` is :func:`keyed_min` over that range (unused when the range is empty)."""
     if k_lo > k_hi:
         return math.nan, 1.0
     best, kbest = key >> 16, key & 0xFFFF
@@ -277,13 +274,13 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
         ring0: Rows the upward paths already went through (see above).
         extrapolate: Select the left disparity over every disparity, also those whose
             right pixel is outside the image (their cells then hold a neutral cost, see
-            ``cost.fill_outside``): the left border strip takes the disparity its
+            ``border.fill_outside``): the left border strip takes the disparity its
             neighbours' paths carry in. Otherwise only in-image disparities are candidates.
             The right view always uses in-image cells only.
         lines: (4, D + 2) uint16 scratch with SENTINEL at both ends of each line (this
-            kernel allocates nothing: ``aggregate.NO_NRT``).
+            kernel allocates nothing: ``jit.NO_NRT``).
     """
-    for _ in prange(1):  # one iteration: see ONE_THREAD_GUFUNC
+    for _ in prange(1):  # one iteration: see aggregate.ONE_THREAD_GUFUNC
         r_all, w, n = cost.shape
         ndir = dxs.shape[0] if upward else 0
         cost_m = keys.view(np.uint16)[:w]  # the right view's candidates (uint16 pairs)
@@ -292,7 +289,7 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
             b = (r_all if upward else rows) - 1 - i  # band-relative row, bottom up
             y = y0 + b
             ring = (ring0 + i) % 3
-            cur_ring = _ring(lb0, lb1, lb2, ring)
+            cur_ring = ring_slot(lb0, lb1, lb2, ring)
             in_band = b < rows
             # (1) upward paths + downward sum; without upward paths (1) has nothing to do
             # and (3) adds the downward sum itself
@@ -311,7 +308,7 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
                     else:
                         pring = (ring0 + i - step) % 3
                         p2e = table_p2(p2, p2_table, image[y, x], image[y + step, xp])
-                        best = path_step(cost[b, x], _ring(lb0, lb1, lb2, pring)[j, xp],
+                        best = path_step(cost[b, x], ring_slot(lb0, lb1, lb2, pring)[j, xp],
                                          int(mbuf[j, pring, xp]), p1, p2e, cur)
                     mbuf[j, ring, x] = best
                     if in_band:
@@ -348,7 +345,7 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
                     else:
                         for d in range(n):
                             tot[d] = part[d] + ltr[d] + rtl[d]
-                    key = _keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
+                    key = keyed_min(tot, sel_lo, sel_hi) if sel_lo <= sel_hi else 0
                 if store_total:
                     part = total_out[y, x]
                     for d in range(n):
@@ -401,13 +398,14 @@ def select_reference(total: NDArray[np.integer], *, min_disparity: int, uniquene
         ratio = np.where(has_second & (second > 0), best / np.where(second > 0, second, 1), 1.0)
     unique = ~has_second | (second * (100 - uniqueness) >= best * 100)
     mode = SUBPIXEL_MODES[subpixel]
+    plain_offset = python_function(subpixel_offset)
     offset = np.zeros((h, w))
     for y in range(h):
         for x in range(w):
             k = kbest[y, x]
             if 0 < k < n - 1 and valid[y, x, k - 1] and valid[y, x, k + 1]:
-                offset[y, x] = subpixel_offset.py_func(mode, tot[y, x, k - 1], tot[y, x, k],
-                                                       tot[y, x, k + 1])
+                offset[y, x] = plain_offset(mode, tot[y, x, k - 1], tot[y, x, k],
+                                            tot[y, x, k + 1])
     any_valid = valid.any(axis=2)
     left = np.where(unique & any_valid, min_disparity + kbest + offset, np.nan)
     ratio = np.where(any_valid, ratio, 1.0)
@@ -427,6 +425,6 @@ def select_reference(total: NDArray[np.integer], *, min_disparity: int, uniquene
             off = 0.0
             if 0 < k < n - 1 and ok[k - 1] and ok[k + 1] and np.isfinite(diag[y, k - 1]) \
                     and np.isfinite(diag[y, k + 1]):
-                off = subpixel_offset.py_func(mode, diag[y, k - 1], diag[y, k], diag[y, k + 1])
+                off = plain_offset(mode, diag[y, k - 1], diag[y, k], diag[y, k + 1])
             right[y, xr] = min_disparity + k + off
     return left.astype(np.float32), right.astype(np.float32), ratio.astype(np.float32)

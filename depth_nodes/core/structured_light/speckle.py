@@ -39,7 +39,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.sgm.cost import census_transform, census_transform_reference, popcount
+from depth_nodes.core.sgm.census import census_transform, census_transform_reference, popcount
 from depth_nodes.errors import ConfigError, InputFileError
 
 F32 = NDArray[np.float32]
