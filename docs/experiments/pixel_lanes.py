@@ -19,7 +19,8 @@ census and P2 settings), one thread each:
 4. as 3 without writing the sums: the recurrence and the cost transposes alone.
 
 Every variant's sums are checked against (1), bit for bit. Run from the repository with
-``.venv/bin/python docs/experiments/pixel_lanes.py``. Results: docs/speed.md.
+``.venv/bin/python docs/experiments/pixel_lanes.py``. Results:
+docs/experiments/speed_history.md.
 """
 
 from __future__ import annotations

@@ -1,11 +1,13 @@
 """The README's Python example runs as printed and its numbers hold against ground truth;
-every file the README and docs/ link to exists."""
+every file the README and docs/ (experiments/ included) link to exists, and every section
+of a page they link to."""
 
 from __future__ import annotations
 
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 from helpers import REPO
 
@@ -23,7 +25,27 @@ def test_the_python_example_runs_and_is_accurate() -> None:
     assert bad2 < 0.05
 
 
+def pages() -> list[Path]:
+    """The README and every page under docs/."""
+    return [REPO / 'README.md', *sorted((REPO / 'docs').rglob('*.md'))]
+
+
+def anchors(page: Path) -> set[str]:
+    """The anchors of a page's headings, as GitHub makes them: lower case, spaces to
+    hyphens, every character but letters, digits, ``-`` and ``_`` removed."""
+    headings = re.findall(r'^#+ (.+)$', re.sub(r'```.*?```', '', page.read_text(), flags=re.S),
+                          flags=re.M)
+    return {re.sub(r'[^\w\- ]', '', h.strip().lower()).replace(' ', '-') for h in headings}
+
+
 def test_links_point_at_files_that_exist() -> None:
-    for page in [REPO / 'README.md', *(REPO / 'docs').glob('*.md')]:
+    for page in pages():
         for target in re.findall(r'\]\(([^)#:]+)(?:#[^)]*)?\)', page.read_text()):
             assert (page.parent / target).exists(), (page.name, target)
+
+
+def test_links_point_at_sections_that_exist() -> None:
+    for page in pages():
+        for target, anchor in re.findall(r'\]\(([^)#:]*)#([^)]+)\)', page.read_text()):
+            linked = (page.parent / target) if target else page
+            assert anchor in anchors(linked), (page.name, f'{target}#{anchor}')
