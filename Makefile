@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 DEMO_OUT := out/demo
 
-.PHONY: venv test lint typecheck unit demo bags clean
+.PHONY: venv test check lint typecheck unit demo bags clean
 
 venv: $(STAMP)
 
@@ -30,6 +30,12 @@ unit: venv
 	$(BIN)/python -m pytest
 
 test: lint typecheck unit
+
+# The fast tier, for every edit: ruff and the tests not marked slow (about two minutes on
+# two cores). `make test` is the whole suite, and what CI runs.
+check: venv
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q -m 'not slow'
 
 # The shipped stereo graph on the bundled simulator bag and on a real pair with ground
 # truth (Middlebury 2003 Teddy, test/data), each scored beside OpenCV's StereoSGBM.

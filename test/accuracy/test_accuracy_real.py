@@ -25,6 +25,8 @@ from targets import CHECKED, RAW, assert_beats_opencv, assert_confidence_ranks_e
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.evaluation.evaluate import EvalReport
 
+pytestmark = pytest.mark.slow
+
 #: bad-1 over non-occluded pixels of the dense output, at most (SGM 2008: 6.02 %, 3.06 %).
 NONOCC_BAD1 = {'teddy': 0.060, 'cones': 0.030}
 

@@ -24,6 +24,8 @@ from depth_nodes.ros.image import image_to_array
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.evaluation.evaluate import EvalReport
 
+pytestmark = pytest.mark.slow
+
 OURS = '/stereo/disparity'
 #: The shipped graph's figures before the real-pair work (2df558a, measured with its eval):
 #: raw dense / sparse bad-2 over all ground-truth pixels and over non-occluded ones, 5

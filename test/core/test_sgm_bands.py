@@ -242,6 +242,7 @@ def test_every_thread_count_gives_the_same_result(paths: int, memory_mb: float,
     assert np.median(valid) == 4
 
 
+@pytest.mark.slow  # 28 s: VGA frames at two thread counts
 @pytest.mark.parametrize('search', ['full', 'coarse'])
 @pytest.mark.parametrize(('paths', 'memory_mb'), [(8, 160.0), (8, 0.0), (5, 0.0)])
 def test_another_thread_count_reuses_the_volumes(paths: int, memory_mb: float,

@@ -34,7 +34,7 @@ from depth_nodes.tools.bench.live import warm_up
 from depth_nodes.tools.evaluation.campaign import START_NS, Campaign, write_bad_input_bag
 from depth_nodes.tools.live.processes import GraphProcesses, StereoFeeder, load_stereo_frames
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 OUTPUTS = ['/stereo/disparity', '/stereo/disparity_checked', '/stereo/depth',
            '/stereo/points2']

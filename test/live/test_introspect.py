@@ -4,7 +4,9 @@ and `play --loop` of a bundled bag, whose every repeat a node processes.
 
 One rectifier process fed by `depth-nodes play --loop` (both in the background, on the
 module's own ROS_DOMAIN_ID) serves the module; it is stopped with SIGINT and SIGTERM at
-the end and must exit 0."""
+the end and must exit 0. The node's outputs are lazy: a `topic hz` on image_rect, in the
+background too, keeps it rectifying every frame (without a subscriber it would count the
+frames as skipped and publish nothing)."""
 
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from std_msgs.msg import Header
 
 from depth_nodes.tools.live.introspect import RateWindow, diag_table, summary, to_text
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 BAG = REPO / 'bags' / 'stereo_vga'
 NODE = '/stereo/left/rectify_left'
@@ -39,6 +41,10 @@ def graph() -> Iterator[dict[str, str]]:
          '--wait-for-subscribers', str(START_TIMEOUT), '--topics', '/stereo/left/image_raw',
          '/stereo/left/camera_info'],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO)
+    listener = subprocess.Popen(
+        [sys.executable, '-m', 'depth_nodes.tools.cli', 'topic', 'hz',
+         f'{NODE.rsplit("/", 1)[0]}/image_rect', '--timeout', str(START_TIMEOUT)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
     try:
         deadline = time.monotonic() + START_TIMEOUT
         while time.monotonic() < deadline:
@@ -50,9 +56,12 @@ def graph() -> Iterator[dict[str, str]]:
             raise AssertionError('the rectifier published nothing')
         yield env
     finally:
+        listener.send_signal(signal.SIGINT)
+        _, heard = listener.communicate(timeout=30)
         player.send_signal(signal.SIGTERM)  # what systemd and docker send
         played, _ = player.communicate(timeout=30)
         output = interrupt(node)
+    assert listener.returncode == 0, heard
     assert player.returncode == 0, played
     assert re.search(r'played \d+ messages', played), played
     assert node.returncode == 0, output

@@ -23,7 +23,7 @@ from std_msgs.msg import Header
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.tools.bags.io import BagReader, BagWriter
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 N_FRAMES = 12
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)

@@ -37,7 +37,7 @@ from depth_nodes.ros.image import image_to_array
 from depth_nodes.ros.pointcloud import read_pointcloud
 from depth_nodes.tools.live.processes import StereoFeeder, StereoFrame, load_stereo_frames
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 WATCH = ['/stereo/left/image_rect', '/stereo/right/image_rect', '/stereo/disparity',
          '/stereo/points2']

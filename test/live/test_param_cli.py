@@ -16,7 +16,7 @@ from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 
 from depth_nodes.tools.live.param import coerce_to_declared, nest, parse_value, to_python
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 NODE = '/stereo/sgm_stereo'
 def _start_sgm_node(env: dict[str, str], *ros_args: str) -> subprocess.Popen[str]:

@@ -12,7 +12,7 @@ from rclpy.executors import MultiThreadedExecutor
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import create_nodes, load_graph_config, load_params_file
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 @pytest.mark.parametrize('name', ['stereo_pipeline', 'structured_light_pipeline'])

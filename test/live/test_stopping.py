@@ -21,7 +21,7 @@ from helpers import REAL_DATA, REPO
 
 from depth_nodes.tools.bags.io import BagReader
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 CLI = [sys.executable, '-m', 'depth_nodes.tools.cli']
 

@@ -55,7 +55,7 @@ from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 from depth_nodes.sim.tof import ToFSimConfig, simulate_tof
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 #: Frames per node and seed; a fresh node every FRESH frames (a mutated stamp far in the
 #: future would otherwise make every later frame out of order).

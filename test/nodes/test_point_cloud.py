@@ -349,6 +349,7 @@ def test_parameters_change_live_and_bad_values_are_rejected(node: Any,
         assert node.params.values['min_range'] == 0.0
 
 
+@pytest.mark.slow  # a benchmark: 5 s
 def test_bench_reports_times_and_sizes(ros_env: dict[str, str]) -> None:
     from depth_nodes.tools.bench.nodes import bench_point_cloud
 

@@ -36,6 +36,8 @@ from depth_nodes.nodes.registry import NODES
 from depth_nodes.ros.image import image_to_array, to_gray
 from depth_nodes.tools.bags.io import BagReader
 
+pytestmark = pytest.mark.slow
+
 COLCON = Path(sys.executable).with_name('colcon')
 #: What colcon and setuptools would write into the source tree if run from it.
 BUILD_OUTPUTS = ('build', 'install', 'log', f'{PACKAGE}.egg-info')

@@ -20,6 +20,8 @@ from depth_nodes.nodes import NODE_PLUGINS, UPSTREAM_EXECUTABLES, scripts
 from depth_nodes.nodes.registry import INPUT_KINDS, NODES, script_names
 from depth_nodes.ros.node import DepthNode
 
+pytestmark = pytest.mark.slow
+
 #: setup.py run with the package and rclpy made unimportable and setuptools.setup recorded.
 _SETUP_WITHOUT_PACKAGE = """
 import runpy, sys

@@ -11,7 +11,10 @@ import re
 import subprocess
 import sys
 
+import pytest
 from helpers import REPO
+
+pytestmark = pytest.mark.slow
 
 
 def test_the_kernel_tests_pass_with_the_jit_off() -> None:

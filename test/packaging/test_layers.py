@@ -6,7 +6,10 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 from helpers import REPO
+
+pytestmark = pytest.mark.slow
 
 #: Make rclpy (and the message packages) unimportable before anything else is imported.
 WITHOUT_ROS = ("import sys\n"

@@ -199,6 +199,7 @@ def test_sensor_data_subscription_takes_best_effort_and_reliable_publishers(
         node.destroy_node()
 
 
+@pytest.mark.slow  # 11 s (the subscription matches slowly over DDS)
 def test_qos_overrides_make_the_subscription_reliable(context: Context) -> None:
     node = InvertNode(context=context, namespace='/cam', parameter_overrides=[
         Parameter('qos_overrides./cam/image.subscription.reliability', value='reliable')])

@@ -14,6 +14,8 @@ from depth_nodes.ros.image import image_to_array, to_gray
 from depth_nodes.tools.bags.generate import PRESETS, config_from_bag_metadata, write_stereo_bag
 from depth_nodes.tools.bags.io import BagReader
 
+pytestmark = pytest.mark.slow
+
 BAGS = REPO / 'bags'
 MAX_BAG_MB = 8.0
 MAX_TOTAL_MB = 24.0  # every bag in bags/, the structured-light and ToF ones included (20 MB)

@@ -14,6 +14,8 @@ from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.tools.bags.io import BagWriter
 
+pytestmark = pytest.mark.slow
+
 
 def _good_bag(path: Path) -> None:
     with BagWriter(path) as writer:

@@ -23,6 +23,8 @@ from depth_nodes.tools.bags.process import process_bag
 from depth_nodes.tools.evaluation.evaluate import evaluate_bag
 from depth_nodes.tools.live.pipeline import compose_remappings, user_remappings
 
+pytestmark = pytest.mark.slow
+
 STEREO = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
 RAW = '/stereo/disparity'
 

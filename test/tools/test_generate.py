@@ -16,6 +16,8 @@ from depth_nodes.sim import StereoSimConfig
 from depth_nodes.tools.bags.generate import config_from_bag_metadata, write_stereo_bag
 from depth_nodes.tools.bags.io import BagReader
 
+pytestmark = pytest.mark.slow
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 CONFIG = StereoSimConfig(width=160, height=120, n_frames=2, seed=5, colour=True,
                          distortion_model='rational_polynomial', right_cx_offset=2.5)

@@ -16,6 +16,8 @@ from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array
 from depth_nodes.tools.bags.io import BagReader
 
+pytestmark = pytest.mark.slow
+
 TEDDY = REAL_DATA / 'teddy'
 
 

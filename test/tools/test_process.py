@@ -21,6 +21,8 @@ from depth_nodes.ros.image import array_to_image
 from depth_nodes.tools.bags.io import BagReader, BagWriter
 from depth_nodes.tools.bags.process import process_bag
 
+pytestmark = pytest.mark.slow
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 RAW = '/stereo/left/image_raw'
 GRAPH = """

@@ -44,6 +44,8 @@ from depth_nodes.tools.bags.structured_light import (
     write_structured_light_bag,
 )
 
+pytestmark = pytest.mark.slow
+
 #: Bound on a wait for a worker's answer (not a timing assertion: it only ends a hang).
 WAIT_S = 60.0
 STEREO = StereoSimConfig(width=160, height=120, n_frames=8, seed=7, colour=True)

@@ -23,6 +23,8 @@ from depth_nodes.tools.bags.process import process_bag
 from depth_nodes.tools.bench.rectify import bench_rectify
 from depth_nodes.tools.evaluation.evaluate import evaluate_bag
 
+pytestmark = pytest.mark.slow
+
 BAGS = REPO / 'bags'
 MARGIN = 16  # px left out at the image border, where a remap samples near the raw edge
 

@@ -20,6 +20,8 @@ from depth_nodes.tools.bags.process import process_bag
 from depth_nodes.tools.bags.tof import PRESETS, config_from_metadata, write_tof_bag
 from depth_nodes.tools.evaluation.tof import evaluate_tof_bag
 
+pytestmark = pytest.mark.slow
+
 BUNDLED = REPO / 'bags' / 'tof_vga'
 CONFIG = REPO / 'config' / 'tof_pipeline.yaml'
 SMALL = ToFSimConfig(width=96, height=72, focal_px=75.0, supersample=2, emitter_step=8,
