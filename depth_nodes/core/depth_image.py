@@ -199,7 +199,7 @@ def register_depth(depth: NDArray[np.floating[Any]], source: Intrinsics, target:
 
     Returns:
         (target.height, target.width) float32 Z in the target frame, NaN where nothing
-        landed.
+        landed (a Z beyond float32's range does not land).
 
     Raises:
         ArgumentError: Shapes that do not fit, or a rotation that is not one.
@@ -242,6 +242,7 @@ def _register_kernel(depth: NDArray[np.float32], src: NDArray[np.float64],
                      out: NDArray[np.float32]) -> None:
     height, width = depth.shape
     out_h, out_w = out.shape
+    h_end, w_end = float(out_h), float(out_w)
     for v in range(height):
         for u in range(width):
             z = depth[v, u]
@@ -267,14 +268,19 @@ def _register_kernel(depth: NDArray[np.float32], src: NDArray[np.float64],
             # pixel centres inside the footprint, before clipping to the image
             c0, c1 = np.ceil(u_lo), np.ceil(u_hi) - 1.0
             r0, r1 = np.ceil(v_lo), np.ceil(v_hi) - 1.0
-            if c0 > c1 or r0 > r1:
+            if not (c0 <= c1 and r0 <= r1):
                 # covers no pixel centre: the pixel that holds its centre
                 cu, cv = np.floor(uc + 0.5), np.floor(vc + 0.5)
                 if 0 <= cu < out_w and 0 <= cv < out_h and zf < out[int(cv), int(cu)]:
                     out[int(cv), int(cu)] = zf
                 continue
-            for r in range(max(int(max(r0, -1.0)), 0), int(min(r1, out_h - 1.0)) + 1):
-                for c in range(max(int(max(c0, -1.0)), 0), int(min(c1, out_w - 1.0)) + 1):
+            # clipped to the image before int(): a float beyond int64 (a depth of 1e-30 m
+            # projects ~1e30 px away) has no defined int, and it came out as the most
+            # negative one, so such a footprint filled a whole row
+            r_first, r_last = min(max(r0, 0.0), h_end), max(min(r1, h_end - 1.0), -1.0)
+            c_first, c_last = min(max(c0, 0.0), w_end), max(min(c1, w_end - 1.0), -1.0)
+            for r in range(int(r_first), int(r_last) + 1):
+                for c in range(int(c_first), int(c_last) + 1):
                     if zf < out[r, c]:
                         out[r, c] = zf
 
@@ -307,7 +313,9 @@ def register_reference(depth: NDArray[np.floating[Any]], source: Intrinsics,
     none = np.isnan(u_lo)  # no corner ahead of the camera: the centre alone
     u_lo, u_hi = np.where(none, uc, u_lo), np.where(none, uc, u_hi)
     v_lo, v_hi = np.where(none, vc, v_lo), np.where(none, vc, v_hi)
-    zf = zc.astype(np.float32)
+    with np.errstate(over='ignore'):
+        zf = zc.astype(np.float32)
+    lands = zf < np.inf  # a Z beyond float32's range never beats the kernel's start, inf
     for r in range(target.height):
         for c in range(target.width):
             covers = (zc > 0) & (u_lo <= c) & (c < u_hi) & (v_lo <= r) & (r < v_hi)
@@ -315,7 +323,7 @@ def register_reference(depth: NDArray[np.floating[Any]], source: Intrinsics,
                 holds = (zc > 0) & ~((np.ceil(u_lo) <= np.ceil(u_hi) - 1)
                                      & (np.ceil(v_lo) <= np.ceil(v_hi) - 1)) \
                     & (np.floor(uc + 0.5) == c) & (np.floor(vc + 0.5) == r)
-            hits = zf[covers | holds]
+            hits = zf[(covers | holds) & lands]
             if hits.size:
                 out[r, c] = hits.min()
     return out

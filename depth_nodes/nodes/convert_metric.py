@@ -8,7 +8,7 @@ and publishes ``image``: 32FC1 metres, NaN unknown (REP 118), with the input's h
 Outputs are computed only while subscribed (lazy), or always offline.
 
 Frames without output are counted and logged: ``unsupported_encoding`` and the decoding
-reasons.
+reasons (``malformed_image``: also a depth image with no pixel).
 """
 
 from __future__ import annotations

@@ -16,8 +16,9 @@ matcher here (the two upstream packages use the same name).
 Outputs are computed only while subscribed (lazy), or always offline.
 
 Frames without output are counted and logged: ``unsupported_encoding``, the decoding
-reasons, ``uncalibrated``, ``bad_calibration`` (also a right camera_info without a
-baseline), ``sync_*``.
+reasons (``malformed_image``: also a depth image with no pixel), ``uncalibrated``,
+``bad_calibration`` (also a right camera_info without a baseline, or whose ``f * B`` is
+not a finite positive number), ``sync_*``.
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ from depth_nodes.ros.params import NodeParameters, ParamSpec
 
 #: The nearest depth taken when ``min_range`` is 0, metres (16UC1's smallest).
 NEAREST_DEPTH = 0.001
+#: The disparities the message can hold: positive normal float32.
+FLOAT32_RANGE = (float(np.finfo(np.float32).tiny), float(np.finfo(np.float32).max))
 
 
 def _positive_or_inf(value: float) -> str | None:
@@ -85,14 +88,19 @@ class DepthDisparityNode(DepthImageNode):
         camera = self.camera(right_info, 'right/camera_info', depth.shape)
         if camera is None:
             return
-        p = np.asarray(right_info.p, dtype=np.float64)
-        focal, baseline = camera.fx, -float(p[3]) / float(p[0])
+        # P of the model: an all-zero P is [K | 0] (no baseline), its fx checked positive
+        model = self.camera_model(right_info, 'right/camera_info')
+        focal, baseline = camera.fx, -model.Tx / model.fx
         if not baseline > 0:
             self.drop('bad_calibration', f'right/camera_info has no baseline: P[0, 3] is '
-                      f'{p[3]:g}, a right camera\'s is -fx * B < 0')
+                      f'{model.Tx:g}, a right camera\'s is -fx * B < 0')
             return
         values = self.params.values
         nearest = max(values['min_range'], NEAREST_DEPTH)
+        if not FLOAT32_RANGE[0] <= focal * baseline / nearest <= FLOAT32_RANGE[1]:
+            self.drop('bad_calibration', f'right/camera_info gives f * B = {focal:g} px * '
+                      f'{baseline:g} m, whose disparities are not finite positive float32')
+            return
         with np.errstate(invalid='ignore'):
             depth = np.where((depth >= nearest) & (depth <= values['max_range']), depth,
                              np.nan)

@@ -14,8 +14,8 @@ image of another size than the CameraInfo gets them scaled to its size.
 Outputs are computed only while subscribed (lazy), or always offline.
 
 Frames without output are counted and logged: ``unsupported_encoding``, the decoding
-reasons (``malformed_image``, ``decode_failed``...), ``uncalibrated``,
-``bad_calibration``, ``sync_*``.
+reasons (``malformed_image``, also a depth image with no pixel, ``decode_failed``...),
+``uncalibrated``, ``bad_calibration``, ``sync_*``.
 """
 
 from __future__ import annotations

@@ -17,7 +17,8 @@ whose area holds the depth pixel's centre.
 Outputs are computed only while subscribed (lazy), or always offline.
 
 Frames without output are counted and logged: ``unsupported_encoding``, the decoding
-reasons, ``uncalibrated``, ``bad_calibration``, ``sync_*``.
+reasons, ``malformed_image`` (also a depth or colour image with no pixel),
+``uncalibrated``, ``bad_calibration``, ``sync_*``.
 """
 
 from __future__ import annotations
@@ -82,6 +83,8 @@ class PointCloudXyzrgbNode(DepthImageNode):
         if encoding not in COLOR_ENCODINGS:
             self.drop('unsupported_encoding', f'rgb/image_rect_color encoding {encoding!r} '
                       f'is not one of {", ".join(COLOR_ENCODINGS)}')
+            return
+        if not self.has_pixels(pixels, 'rgb/image_rect_color'):
             return
         camera = self.camera(info, 'rgb/camera_info', depth.shape)
         if camera is None:

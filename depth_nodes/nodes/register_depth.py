@@ -19,8 +19,10 @@ Outputs are computed only while subscribed (lazy), or always offline: the depth 
 registered only while ``depth_registered/image_rect`` is wanted.
 
 Frames without output are counted and logged: ``no_transform`` (the two frames not
-connected by the transforms received), ``unsupported_encoding``, the decoding reasons,
-``uncalibrated``, ``bad_calibration``, ``sync_*``.
+connected by the transforms received), ``unsupported_encoding``, the decoding reasons
+(``malformed_image``: also a depth image with no pixel), ``uncalibrated``,
+``bad_calibration`` (also a colour camera of more than 16 Mpx, the output's size),
+``sync_*``.
 """
 
 from __future__ import annotations

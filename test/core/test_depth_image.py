@@ -251,6 +251,33 @@ def test_the_nearest_surface_wins() -> None:
     np.testing.assert_array_equal(out, register_reference(depth, cam, cam, np.eye(3), shift))
 
 
+#: Finite depths far from any camera's working range, metres: float32's smallest
+#: subnormal and normal, tiny, and huge up to float32's largest.
+EXTREME_DEPTHS = (1e-45, 1.2e-38, 1e-30, 1e-9, 1e9, 1e30, 3.4e38)
+
+
+@pytest.mark.kernels
+@pytest.mark.parametrize('z', EXTREME_DEPTHS)
+@pytest.mark.parametrize('pose', ['beside', 'turned'])
+def test_an_extreme_depth_writes_its_footprint_only(z: float, pose: str) -> None:
+    """One depth pixel at an extreme but finite depth writes the target pixels its footprint
+    covers and no other, as the plain reference does. A pixel of 1e-30 m seen from 2 cm
+    beside it projects ~1e30 px away: the float loop bound became the most negative integer
+    when converted and the pixel filled its whole row (issue 33)."""
+    cam = Intrinsics(60.0, 60.0, 31.5, 23.5, 64, 48)
+    R, t = ((np.eye(3), np.array([0.02, 0.0, 0.0])) if pose == 'beside' else
+            (rotation_matrix(quaternion_from_rpy(0.3, -0.4, 0.2)), np.array([0.02, 0.01, 0.0])))
+    for v, u in ((23, 31), (0, 0), (47, 63), (10, 50)):
+        depth = np.full((48, 64), np.nan, np.float32)
+        depth[v, u] = z
+        out = register_depth(depth, cam, cam, R, t)
+        np.testing.assert_array_equal(out, register_reference(depth, cam, cam, R, t))
+        assert np.isfinite(out).sum() <= 4, (v, u)  # a pixel's footprint, never a row
+    one = np.full((48, 64), np.nan, np.float32)
+    one[23, 31] = 1e-30
+    assert np.isnan(register_depth(one, cam, cam, np.eye(3), np.array([0.02, 0.0, 0.0]))).all()
+
+
 @pytest.mark.parametrize(('R', 't', 'message'), [
     (np.eye(2), np.zeros(3), 'rotation must be \\(3, 3\\)'),
     (np.eye(3), np.zeros(2), 'translation \\(3,\\)'),

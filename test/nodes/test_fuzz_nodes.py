@@ -2,9 +2,10 @@
 it loses.
 
 The campaign iterates over the node registry (depth_nodes/nodes/registry.py): each node's
-valid frames are built from its ``inputs`` kind (:data:`KINDS`: small simulated images,
-their CameraInfos, the disparities the matcher makes of them, depth images, time-of-flight
-correlation frames), and fed through the node's own input callbacks, as the bag harness
+valid frames are built from its ``inputs`` kind (``KINDS`` of test/node_frames.py, shared
+with the structured hostile-input test: small simulated images, their CameraInfos, the
+disparities the matcher makes of them, depth images, time-of-flight correlation frames,
+pattern images), and fed through the node's own input callbacks, as the bag harness
 does; in most frames one field of one message is replaced by an extreme, non-finite, empty,
 oversized or nonsensical value (any field, nested ones included: stamps, sizes, encodings,
 data, calibration matrices, DisparityImage ranges, pattern tags). A registry node whose kind
@@ -22,8 +23,6 @@ transform at start-up) has its parameters as its only input: hostile values must
 start-up with a one-line error, or it latches one finite transform.
 
 Fixed seeds, so a failure is reproducible; the mutation that broke a node is in the message.
-Known failures are marked ``xfail(strict=True)`` with their issue, per node and seed: the
-marker must go when the bug is fixed.
 """
 
 from __future__ import annotations
@@ -33,27 +32,17 @@ import copy
 import importlib
 import math
 import random
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pytest
-from helpers import Lazy
+from node_frames import is_empty, kind_of, make_node
 from rclpy.context import Context
 from rclpy.parameter import Parameter
-from ros_helpers import header
-from sensor_msgs.msg import CameraInfo, Image
 
-from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.errors import DepthNodesError
 from depth_nodes.graph.description import resolve_plugin
 from depth_nodes.nodes.registry import NODES, NodeEntry
-from depth_nodes.ros.camera_info import model_to_camera_info
-from depth_nodes.ros.disparity import build_disparity
-from depth_nodes.ros.image import array_to_image
-from depth_nodes.sim import StereoSimConfig, simulate_stereo
-from depth_nodes.sim.tof import ToFSimConfig, simulate_tof
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -61,18 +50,6 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 #: future would otherwise make every later frame out of order).
 FRAMES, FRESH = 120, 12
 SEEDS = (1, 2)
-W, H, RANGE = 64, 48, 16
-
-FRAME = Lazy(lambda: next(simulate_stereo(StereoSimConfig(
-                 width=W, height=H, n_frames=1, seed=9, distortion_scale=0.0, rotation_deg=0.0,
-                 noise_sigma=1.0, focal_px=60.0))))
-MATCH = Lazy(lambda: SgmMatcher(SgmParams(disparity_range=RANGE, paths=5)).match(FRAME.left_rect_gt,
-                                                                                 FRAME.right_rect_gt))
-TOF = Lazy(lambda: next(simulate_tof(ToFSimConfig(
-               width=W, height=H, focal_px=50.0, supersample=1, emitter_step=8,
-               multipath=False, n_frames=1))))
-DISPARITY_COMMON = {'focal': 60.0, 'baseline': 0.1, 'min_disparity': 0.0,
-                    'max_disparity': RANGE - 1.0, 'delta_d': 1 / 32}
 
 INT_LIMITS = {'int8': (-2**7, 2**7 - 1), 'uint8': (0, 2**8 - 1), 'int16': (-2**15, 2**15 - 1),
               'uint16': (0, 2**16 - 1), 'int32': (-2**31, 2**31 - 1),
@@ -142,136 +119,9 @@ def _mutate(msg: Any, rng: random.Random) -> str:
     return f'{path} = {shown}'
 
 
-def _info(model: Any, stamp: int) -> CameraInfo:
-    return model_to_camera_info(model, header(stamp))
-
-
-def _image(pixels: Any, encoding: str, stamp: int) -> Image:
-    return array_to_image(np.ascontiguousarray(pixels), encoding, header(stamp))
-
-
-def _disparity(values: Any, stamp: int) -> Any:
-    return build_disparity(values, header(stamp), **DISPARITY_COMMON)
-
-
-def _depth(stamp: int) -> Image:
-    """The left view's depth, 32FC1 metres (NaN where the scene has none)."""
-    return _image(FRAME.depth_gt.astype(np.float32), '32FC1', stamp)
-
-
-def _millimetres(stamp: int) -> Image:
-    depth = np.nan_to_num(FRAME.depth_gt * 1000.0, nan=0.0, posinf=0.0)
-    return _image(np.clip(depth, 0, 65535).astype(np.uint16), '16UC1', stamp)
-
-
-def _tof(stamp: int) -> Image:
-    planes = TOF.samples
-    return _image(planes.reshape(-1, planes.shape[-1]), '16UC1', stamp)
-
-
-@dataclass(frozen=True)
-class Kind:
-    """An inputs kind of the registry: the valid messages of one frame by input topic
-    suffix, and the output topic a frame produces."""
-
-    frame: Callable[[int], dict[str, Any]]
-    output: str
-
-
-KINDS = {
-    'camera': Kind(lambda t: {
-        'image': _image(FRAME.left_raw, 'mono8', t),
-        'camera_info': _info(FRAME.left_camera, t)}, '/image_rect'),
-    'stereo_rect': Kind(lambda t: {
-        'left/image_rect': _image(FRAME.left_rect_gt, 'mono8', t),
-        'left/camera_info': _info(FRAME.left_camera, t),
-        'right/image_rect': _image(FRAME.right_rect_gt, 'mono8', t),
-        'right/camera_info': _info(FRAME.right_camera, t)}, '/disparity'),
-    'disparity_pair': Kind(lambda t: {
-        'disparity': _disparity(MATCH.disparity, t),
-        'disparity_right': _disparity(MATCH.disparity_right, t),
-        'cost_ratio': _image(MATCH.cost_ratio, '32FC1', t)}, '/disparity_checked'),
-    'stereo_disparity': Kind(lambda t: {
-        'disparity': _disparity(MATCH.disparity, t),
-        'left/image_rect_color': _image(FRAME.left_rect_gt, 'mono8', t),
-        'left/camera_info': _info(FRAME.left_camera, t),
-        'right/camera_info': _info(FRAME.right_camera, t),
-        'confidence': _image(np.full((H, W), 0.5, np.float32), '32FC1', t)}, '/points2'),
-    'pattern_sequence': Kind(lambda t: {
-        'image': _image(FRAME.left_rect_gt, 'mono8', t),
-        'camera_info': _info(FRAME.left_camera, t),
-        'pattern': header(t, f'{t // 10**9}:0/24'),
-        'projector/camera_info': _info(FRAME.right_camera, t)}, '/depth'),
-    'depth': Kind(lambda t: {
-        'image_rect': _depth(t),
-        'camera_info': _info(FRAME.left_camera, t)}, '/points'),
-    'depth_colour': Kind(lambda t: {
-        'depth_registered/image_rect': _depth(t),
-        'rgb/image_rect_color': _image(FRAME.left_rect_gt, 'mono8', t),
-        'rgb/camera_info': _info(FRAME.left_camera, t)}, '/points'),
-    'depth_two_cameras': Kind(lambda t: {
-        'depth/image_rect': _millimetres(t),
-        'depth/camera_info': _info(FRAME.left_camera, t),
-        'rgb/camera_info': _info(FRAME.right_camera, t)}, '/depth_registered/image_rect'),
-    'depth_raw': Kind(lambda t: {'image_raw': _millimetres(t)}, '/image'),
-    'depth_stereo': Kind(lambda t: {
-        'left/image_rect': _depth(t),
-        'right/camera_info': _info(FRAME.right_camera, t)}, '/left/disparity'),
-    'tof_correlation': Kind(lambda t: {
-        'correlation/image_raw': _tof(t),
-        'camera_info': _info(TOF.camera, t)}, '/depth/image_rect'),
-}
-
-#: Parameters a node runs with here (ranges that fit 64 x 48 images, its optional inputs
-#: and checks on); the others run with their defaults.
-PARAMETERS = {
-    'sgm_stereo': [Parameter('disparity_range', value=RANGE), Parameter('paths', value=5),
-                   Parameter('threads', value=1)],
-    'cross_check': [Parameter('fill_holes', value=True), Parameter('median_size', value=5)],
-    'point_cloud': [Parameter('use_confidence', value=True),
-                    Parameter('min_confidence', value=0.05)],
-    'structured_light': [Parameter('mode', value='gray'),
-                         Parameter('sequence_timeout', value=0.0)],
-    'register_depth': [Parameter('depth_in_rgb', value=[0.02, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])],
-    'tof': [Parameter('threads', value=1)],
-}
-
-
-def _make(entry: NodeEntry, context: Context) -> Any:
-    node_class = resolve_plugin(entry.name)
-    return node_class(context=context, parameter_overrides=PARAMETERS.get(entry.name, []))
-
-
-def _empty(msg: Any) -> bool:
-    """An image, cloud or disparity with no pixels: no output for the frame."""
-    holder = getattr(msg, 'image', msg)
-    return getattr(holder, 'width', 1) * getattr(holder, 'height', 1) == 0
-
-
-def _route(node: Any) -> dict[str, Callable[[Any], None]]:
-    """Input callbacks by topic suffix (the node's topics are resolved: '/image', ...)."""
-    return {spec.topic.lstrip('/'): spec.callback for spec in node.inputs}
-
-
-_EMPTY_DEPTH = 'a depth image 0 pixels wide or high gives an empty {} instead of a counted drop'
-#: Known failures, each an xfail(strict=True) of that node and seed: (node, seed) -> why.
-KNOWN = {
-    **{('point_cloud_xyz', seed): 'issue 33: ' + _EMPTY_DEPTH.format('cloud') for seed in SEEDS},
-    **{('point_cloud_xyzrgb', seed): 'issue 33: a colour image 0 pixels wide or high raises '
-       'IndexError (internal_error); ' + _EMPTY_DEPTH.format('cloud') for seed in SEEDS},
-    **{('register_depth', seed): 'issue 33: a camera_info 2**31 pixels wide or high makes it '
-       'allocate hundreds of GiB (MemoryError, internal_error)' for seed in SEEDS},
-    **{('convert_metric', seed): 'issue 33: ' + _EMPTY_DEPTH.format('image') for seed in SEEDS},
-    ('depth_disparity', 1): 'issue 33: a right camera_info whose focal length is 0 makes '
-                            'depth_to_disparity raise ArgumentError (internal_error)',
-    ('depth_disparity', 2): 'issue 33: ' + _EMPTY_DEPTH.format('disparity'),
-}
-
-
 def _cases(entries: list[NodeEntry]) -> list[Any]:
-    return [pytest.param(entry, seed, id=f'{entry.name}-{seed}', marks=[
-        pytest.mark.xfail(strict=True, reason=KNOWN[entry.name, seed])]
-        if (entry.name, seed) in KNOWN else []) for entry in entries for seed in SEEDS]
+    return [pytest.param(entry, seed, id=f'{entry.name}-{seed}') for entry in entries
+            for seed in SEEDS]
 
 
 WITH_INPUTS = [entry for entry in NODES if entry.inputs != 'none']
@@ -282,9 +132,7 @@ WITHOUT_INPUTS = [entry for entry in NODES if entry.inputs == 'none']
 def test_node_survives_mutated_messages_and_counts_its_losses(
         context: Context, entry: NodeEntry, seed: int) -> None:
     name = entry.name
-    assert entry.inputs in KINDS, (f'{name}: no frame builder for inputs kind '
-                                   f'{entry.inputs!r}; add one to KINDS')
-    kind = KINDS[entry.inputs]
+    kind = kind_of(entry)
     rng = random.Random(f'{name}-{seed}')
     done: list[str] = []
     produced = without_output = dropped = 0
@@ -298,13 +146,11 @@ def test_node_survives_mutated_messages_and_counts_its_losses(
                     dropped += sum(node.drops.values())
                     assert node.drops.get('internal_error', 0) == 0, (name, done[-FRESH:])
                     node.destroy_node()
-                node = _make(entry, context)
-                outbox: list[tuple[str, Any]] = []
-                node.sink = lambda topic, msg, box=outbox: box.append((topic, msg))
-                routes = _route(node)
-                assert set(kind.frame(1)) <= set(routes), (name, sorted(routes))
+                node = make_node(entry, context)
+                outbox, routes = node.outbox, node.routes
+                assert set(kind.step(1, 0)) <= set(routes), (name, sorted(routes))
             stamp = (i + 1) * 100_000_000
-            msgs = kind.frame(stamp)
+            msgs = kind.step(stamp, 0)
             what = 'valid frame'
             if rng.random() < 0.75:
                 target = rng.choice(sorted(msgs))
@@ -317,9 +163,9 @@ def test_node_survives_mutated_messages_and_counts_its_losses(
             for topic in order:
                 routes[topic](msgs[topic])  # an exception here fails the test: never expected
             outputs = [m for t, m in outbox[before:] if t == kind.output]
-            if any(_empty(m) for m in outputs):  # a frame lost without a word
+            if any(is_empty(m) for m in outputs):  # a frame lost without a word
                 empty.append(what)
-            if any(not _empty(m) for m in outputs):
+            if any(not is_empty(m) for m in outputs):
                 produced += 1
             else:
                 without_output += 1
@@ -335,7 +181,7 @@ def test_node_survives_mutated_messages_and_counts_its_losses(
     # every frame without output was counted, at least once
     assert dropped >= without_output, (name, produced, without_output, dropped)
     # and valid frames still come through around the bad ones
-    if entry.inputs != 'pattern_sequence':  # a gray sequence needs 24 frames in a row
+    if kind.steps == 1:  # a pattern sequence needs all its frames in a row
         assert produced >= FRAMES // 8, (name, produced, done)
 
 
