@@ -14,11 +14,13 @@ kind has no entry here fails those tests: adding a node of a new kind is one ent
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import rclpy
 from helpers import Lazy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
@@ -90,11 +92,12 @@ def correlation(stamp: int) -> Image:
 
 
 def pattern_step(stamp: int, step: int) -> dict[str, Any]:
-    """Image ``step`` of the phase-shift sequence, tagged ``<second>:<step>/<count>``."""
-    return {'image': image(SEQUENCE.images[step], 'mono8', stamp),
+    """Image ``step`` of the phase-shift sequence, tagged ``<second>:<step>/<count>``; the
+    projector's calibration first (the node uses the latest one, as a latched topic's)."""
+    return {'projector/camera_info': info(SEQUENCE.projector, stamp),
+            'image': image(SEQUENCE.images[step], 'mono8', stamp),
             'camera_info': info(SEQUENCE.camera, stamp),
-            'pattern': header(stamp, f'{stamp // 10**9}:{step}/{PATTERNS.count}'),
-            'projector/camera_info': info(SEQUENCE.projector, stamp)}
+            'pattern': header(stamp, f'{stamp // 10**9}:{step}/{PATTERNS.count}')}
 
 
 @dataclass(frozen=True)
@@ -179,6 +182,18 @@ def kind_of(entry: NodeEntry) -> Kind:
     assert entry.inputs in KINDS, (f'{entry.name}: no frame builder for inputs kind '
                                    f'{entry.inputs!r}; add one to KINDS in test/node_frames.py')
     return KINDS[entry.inputs]
+
+
+@contextlib.contextmanager
+def participant_kept(context: Context) -> Iterator[None]:
+    """Keep a node alive in ``context`` meanwhile: the DDS participant lives as long as
+    one of its nodes does, and the tests' large-message profile (64 MiB shared-memory
+    segment) makes creating it cost about 0.1 s, paid again by every node made alone."""
+    keeper = rclpy.create_node('participant_keeper', context=context)
+    try:
+        yield
+    finally:
+        keeper.destroy_node()
 
 
 def make_node(entry: NodeEntry, context: Context) -> Any:

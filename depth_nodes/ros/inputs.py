@@ -139,17 +139,30 @@ class InputSet:
                                    transport=transport[0] if transport else 'raw'))
         return sync
 
-    def start_over(self) -> None:
+    def start_over(self, stamp: int | None = None) -> None:
         """Forget every input's stamp history and what the synchronisers hold (counted as
-        ``time_jump`` drops), so the inputs can be matched again from the new stamps on."""
+        ``time_jump`` drops), so the inputs can be matched again from the new stamps on.
+
+        Args:
+            stamp: The stamp (ns) that jumped back. What a synchroniser holds stamped no
+                later belongs to the new timeline (the image of a frame whose camera_info
+                came second), and is offered to it again instead of being discarded.
+        """
         self._last_stamp.clear()
         for sync, seen in self._syncs:
-            if sync.queued_frames:
-                self._accounting.drop(
-                    'time_jump', f'{sync.queued_frames} frame(s) waiting for their partners '
-                    'were discarded when the stamps jumped back', count=sync.queued_frames)
+            kept = sorted(((s, i, m) for i, s, m in sync.held()
+                           if stamp is not None and s <= stamp), key=lambda k: k[:2])
+            frames = sync.queued_frames
             sync.reset()
             seen.clear()
+            for _, index, msg in kept:
+                sync.add(index, msg)
+            lost = (frames - sync.queued_frames - sync.emitted
+                    - sum(sync.lost_frames.values()))  # those are counted as sync_*
+            if lost > 0:
+                self._accounting.drop(
+                    'time_jump', f'{lost} frame(s) waiting for their partners were '
+                    'discarded when the stamps jumped back', count=lost)
 
     def holds(self) -> bool:
         """True while a message waits for its partners in a synchroniser."""
@@ -197,7 +210,7 @@ class InputSet:
             self._node.get_logger().info(
                 f'{topic}: stamps jumped back by {(last - stamp) / 1e9:.3f} s (a looping bag '
                 'or a restarted source): starting over')
-            self.start_over()
+            self.start_over(stamp)
             self._last_stamp[topic] = stamp
             self._accounting.guarded(self._on_time_jump, where='on_time_jump')
             return True

@@ -228,6 +228,11 @@ class ExactTimeSynchronizer(_SyncBase):
         self.emitted += 1
         self.callback(*slots)
 
+    def held(self) -> list[tuple[int, int, Any]]:
+        """Every message held: ``(input index, stamp ns, message)``."""
+        return [(i, stamp, m) for stamp, slots in self._pending.items()
+                for i, m in enumerate(slots) if m is not None]
+
     def reset(self) -> None:
         """Forget all pending messages (uncounted), counters and per-input stamp history."""
         self._pending.clear()
@@ -352,6 +357,12 @@ class ApproximateTimeSynchronizer(_SyncBase):
             self._candidate = None
             self._pivot = -1
             self._process()
+
+    def held(self) -> list[tuple[int, int, Any]]:
+        """Every message held (a candidate's too): ``(input index, stamp ns, message)``."""
+        return [(i, stamp, m) for i, (q, p) in enumerate(zip(self._queues, self._past,
+                                                              strict=True))
+                for stamp, m in [*p, *q]]
 
     def reset(self) -> None:
         """Forget all held messages (uncounted), counters and per-input stamp history."""

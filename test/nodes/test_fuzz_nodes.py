@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from node_frames import is_empty, kind_of, make_node
+from node_frames import is_empty, kind_of, make_node, participant_kept
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
@@ -138,44 +138,45 @@ def test_node_survives_mutated_messages_and_counts_its_losses(
     produced = without_output = dropped = 0
     empty: list[str] = []
     node = None
-    try:
-        for i in range(FRAMES):
-            if i % FRESH == 0:
-                if node is not None:
-                    node.finish_stream()
-                    dropped += sum(node.drops.values())
-                    assert node.drops.get('internal_error', 0) == 0, (name, done[-FRESH:])
-                    node.destroy_node()
-                node = make_node(entry, context)
-                outbox, routes = node.outbox, node.routes
-                assert set(kind.step(1, 0)) <= set(routes), (name, sorted(routes))
-            stamp = (i + 1) * 100_000_000
-            msgs = kind.step(stamp, 0)
-            what = 'valid frame'
-            if rng.random() < 0.75:
-                target = rng.choice(sorted(msgs))
-                msgs[target] = copy.deepcopy(msgs[target])
-                what = f'{target}: {_mutate(msgs[target], rng)}'
-            done.append(what)
-            before = len(outbox)
-            order = sorted(msgs)
-            rng.shuffle(order)
-            for topic in order:
-                routes[topic](msgs[topic])  # an exception here fails the test: never expected
-            outputs = [m for t, m in outbox[before:] if t == kind.output]
-            if any(is_empty(m) for m in outputs):  # a frame lost without a word
-                empty.append(what)
-            if any(not is_empty(m) for m in outputs):
-                produced += 1
-            else:
-                without_output += 1
-        assert node is not None
-        node.finish_stream()
-        dropped += sum(node.drops.values())
-        assert node.drops.get('internal_error', 0) == 0, (name, done[-FRESH:])
-    finally:
-        if node is not None:
-            node.destroy_node()
+    with participant_kept(context):
+        try:
+            for i in range(FRAMES):
+                if i % FRESH == 0:
+                    if node is not None:
+                        node.finish_stream()
+                        dropped += sum(node.drops.values())
+                        assert node.drops.get('internal_error', 0) == 0, (name, done[-FRESH:])
+                        node.destroy_node()
+                    node = make_node(entry, context)
+                    outbox, routes = node.outbox, node.routes
+                    assert set(kind.step(1, 0)) <= set(routes), (name, sorted(routes))
+                stamp = (i + 1) * 100_000_000
+                msgs = kind.step(stamp, 0)
+                what = 'valid frame'
+                if rng.random() < 0.75:
+                    target = rng.choice(sorted(msgs))
+                    msgs[target] = copy.deepcopy(msgs[target])
+                    what = f'{target}: {_mutate(msgs[target], rng)}'
+                done.append(what)
+                before = len(outbox)
+                order = sorted(msgs)
+                rng.shuffle(order)
+                for topic in order:
+                    routes[topic](msgs[topic])  # an exception here fails the test: never expected
+                outputs = [m for t, m in outbox[before:] if t == kind.output]
+                if any(is_empty(m) for m in outputs):  # a frame lost without a word
+                    empty.append(what)
+                if any(not is_empty(m) for m in outputs):
+                    produced += 1
+                else:
+                    without_output += 1
+            assert node is not None
+            node.finish_stream()
+            dropped += sum(node.drops.values())
+            assert node.drops.get('internal_error', 0) == 0, (name, done[-FRESH:])
+        finally:
+            if node is not None:
+                node.destroy_node()
     # an empty image or cloud is no output: the frame must be counted instead
     assert not empty, (name, empty)
     # every frame without output was counted, at least once

@@ -64,6 +64,34 @@ def test_an_invalid_stamp_is_a_counted_drop_and_does_not_poison_the_next(
         node.destroy_node()
 
 
+@pytest.mark.parametrize('image_first', [True, False])
+def test_a_stamp_far_ahead_costs_only_its_own_frame(context: Context,
+                                                    image_first: bool) -> None:
+    """A camera_info stamped 68 years ahead, then the next frame: its camera_info jumps
+    back, which starts the inputs over. The image of that frame, already waiting when its
+    camera_info came second, was discarded with the rest (time_jump), so the frame after
+    the hostile stamp was lost too (issue 33; a looping bag lost the first frame of each
+    repeat the same way). What waits stamped no later than the stamp that jumped back
+    belongs to the new timeline and is kept."""
+    node = _wired(RectifyNode(context=context))
+    try:
+        _rectify_frame(node, 10**9)
+        ahead = model_to_camera_info(FRAME.left_camera)
+        ahead.header.stamp.sec = 2**31 - 1
+        node.cb['/camera_info'](ahead)
+        stamped = header(3 * 10**9)
+        info = model_to_camera_info(FRAME.left_camera)
+        info.header = stamped
+        image = array_to_image(FRAME.left_raw, 'mono8', stamped)
+        for topic, msg in (('/image', image), ('/camera_info', info))[::1 if image_first
+                                                                        else -1]:
+            node.cb[topic](msg)
+        assert [m.header.stamp.sec for _, m in node.outbox] == [1, 3]
+        assert node.drops == {'time_jump': 1}  # the frame stamped ahead, never matched
+    finally:
+        node.destroy_node()
+
+
 @pytest.mark.parametrize(('width', 'height', 'bx', 'by'), [(0, 0, 1000, 1000),
                                                            (64, 48, 1000, 0),
                                                            (64, 48, 0, 60)])
