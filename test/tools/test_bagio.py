@@ -268,3 +268,31 @@ def test_a_full_disk_at_the_last_chunk_fails_close(tmp_path: Path) -> None:
     with pytest.raises(BagError, match='No space left on device'):
         writer.close()
     assert not bag.exists()
+
+
+def test_flush_puts_a_chunk_on_the_disk_once_its_first_message_is_old_enough(
+        tmp_path: Path) -> None:
+    """What a recording relies on: a chunk that is not full is closed, written and fsynced
+    by flush() once its first message is max_age old; the file then holds it whole."""
+    bag = tmp_path / 'bag'
+    writer = BagWriter(bag)
+    try:
+        writer.write('/cam/info', CameraInfo(width=1), 1)
+        writer.flush(3600.0, wait=True)  # too young: still in the open chunk
+        assert _messages_on_disk(bag / 'bag.mcap') == []
+        writer.write('/cam/info', CameraInfo(width=2), 2)
+        writer.flush(0.0, wait=True)
+        assert _messages_on_disk(bag / 'bag.mcap') == [1, 2]
+        writer.write('/cam/info', CameraInfo(width=3), 3)
+        writer.flush(0.0, wait=True)
+        assert _messages_on_disk(bag / 'bag.mcap') == [1, 2, 3]
+    finally:
+        writer.close()
+    with BagReader(bag) as reader:
+        assert [m.timestamp for m in reader.messages()] == [1, 2, 3]
+
+
+def _messages_on_disk(path: Path) -> list[int]:
+    from depth_nodes.tools.bags.mcap_scan import Message, scan_mcap
+
+    return [r.log_time for r in scan_mcap(path) if isinstance(r, Message)]

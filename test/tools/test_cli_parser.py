@@ -82,9 +82,9 @@ print(json.dumps(out))
 #: Arguments each command needs at least.
 MINIMAL = {'generate': ['out'], 'process': ['in', 'out'], 'convert': ['in', 'out'],
            'import-pair': ['l.png', 'r.png', 'out'], 'pipeline': [], 'play': ['bag'],
-           'record': ['out', '--topics', '/a'], 'param': ['list'], 'node': ['list'],
-           'topic': ['list'], 'diag': [], 'eval': ['bag'], 'eval-sl': ['bag'],
-           'eval-tof': ['bag'], 'bench': ['sgm']}
+           'record': ['out', '--topics', '/a'], 'reindex': ['bag'], 'param': ['list'],
+           'node': ['list'], 'topic': ['list'], 'diag': [], 'eval': ['bag'],
+           'eval-sl': ['bag'], 'eval-tof': ['bag'], 'bench': ['sgm']}
 
 
 def test_the_full_parser_runs_each_command_with_its_module() -> None:

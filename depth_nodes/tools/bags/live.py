@@ -50,6 +50,11 @@ from depth_nodes.tools.signals import STOP, stop_requested
 
 #: Queue depth of the player's publishers and the recorder's subscriptions.
 QUEUE_DEPTH = 1000
+#: Seconds: a recording's chunk is closed once its first message is this old, and the
+#: file fsynced at most this often (:meth:`BagWriter.flush`, every pass of the loop), so a
+#: SIGKILL or a power loss takes at most the last second with it (the rest is recovered
+#: by `depth-nodes reindex`).
+FLUSH_AGE_S = 0.4
 
 
 def _reliable(depth: int = QUEUE_DEPTH) -> QoSProfile:
@@ -117,7 +122,9 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
     """Publish the bag at ``path`` with its original timing; returns messages published.
 
     Raises:
-        BagError: Missing/corrupt bag or unknown topic.
+        BagError: Missing/corrupt bag or unknown topic, or a message whose bytes are not
+            of its topic's type (found when its turn comes: the messages before it went
+            out).
         ConfigError: Invalid options.
     """
     options = options or PlayOptions()
@@ -274,6 +281,7 @@ def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
             clock.clock.sec, clock.clock.nanosec = divmod(bag_msg.timestamp + shift,
                                                           1_000_000_000)
             clock_pub.publish(clock)
+        bag_msg.check()  # the bytes a subscriber gets must be its topic's type
         data = _restamped(bag_msg, shift) if shift else bag_msg.data
         pubs[bag_msg.topic].publish(data)
         count += 1
@@ -301,6 +309,7 @@ class Recorder:
     A subscription is reliable when every publisher of the topic is, best effort
     otherwise, and transient local when every publisher is (as rosbag2 does), so it
     matches any publisher and gets a latched message published before it started.
+    What is recorded reaches the disk within about a second (:meth:`flush`).
     """
 
     def __init__(self, path: str | Path, topics: Iterable[str], *, overwrite: bool = False) -> None:
@@ -348,6 +357,11 @@ class Recorder:
                 self.count += 1
         return on_message
 
+    def flush(self) -> None:
+        """Put what was recorded on the disk, once it is :data:`FLUSH_AGE_S` old."""
+        with self._lock:
+            self.writer.flush(FLUSH_AGE_S)
+
     def close(self) -> None:
         """Finish the bag and the node."""
         self.node.destroy_node()
@@ -382,6 +396,7 @@ def record_bag(path: str | Path, topics: Iterable[str], *, duration: float | Non
                 log.flush()
                 announced = True
             executor.spin_once(timeout_sec=0.05)
+            recorder.flush()
             if max_messages is not None and recorder.count >= max_messages:
                 break
     except KeyboardInterrupt:

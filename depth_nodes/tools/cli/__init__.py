@@ -3,7 +3,8 @@
 Subcommands: ``generate`` (synthetic bags), ``convert`` (a bag as a camera driver records
 it), ``process`` (run nodes over a bag offline),
 ``pipeline`` (the nodes of a graph live, in one process), ``param`` (a running node's
-parameters), ``play`` / ``record`` (bags into and out of a live graph), ``eval``
+parameters), ``play`` / ``record`` (bags into and out of a live graph), ``reindex`` (a
+recording cut off made a complete bag again), ``eval``
 (accuracy against the ground truth in a bag), ``bench`` (speed beside OpenCV). A user error
 prints one line and exits non-zero; never a traceback.
 
@@ -51,6 +52,8 @@ COMMANDS = (
     Command('pipeline', 'run every node of a graph in one process, live', 'pipeline'),
     Command('play', 'publish a bag into the live graph', 'play'),
     Command('record', 'record live topics into a bag', 'record'),
+    Command('reindex', 'make a recording cut off (killed, a full disk, a power loss) a '
+            'complete bag again', 'reindex'),
     Command('param', "a running node's parameters (like ros2 param)", 'param'),
     Command('node', 'the nodes of the running graph (like ros2 node)', 'node'),
     Command('topic', 'the topics of the running graph (like ros2 topic)', 'topic'),
