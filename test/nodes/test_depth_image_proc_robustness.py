@@ -40,11 +40,13 @@ def _send(node: Any, msgs: dict[str, Any]) -> list[tuple[str, Any]]:
     return node.outbox[before:]
 
 
-def _frame(entry: NodeEntry, stamp: int, **replace: Any) -> dict[str, Any]:
+def _frame(entry: NodeEntry, stamp: int, replace: dict[str, Any] | None = None
+           ) -> dict[str, Any]:
+    """A valid frame of the node's kind, with the messages of ``replace`` (restamped)."""
     msgs = KINDS[entry.inputs].step(stamp, 0)
-    for topic, msg in replace.items():
-        msg.header = msgs[topic.replace('__', '/')].header
-        msgs[topic.replace('__', '/')] = msg
+    for topic, msg in (replace or {}).items():
+        msg.header = msgs[topic].header
+        msgs[topic] = msg
     return msgs
 
 
@@ -125,8 +127,8 @@ def _register_depth(context: Context, depth: np.ndarray) -> tuple[Any, np.ndarra
     entry = next(e for e in NODES if e.name == 'register_depth')
     node = _node(entry, context)
     try:
-        out = _send(node, _frame(entry, BAD, depth__image_rect=array_to_image(depth,
-                                                                               '32FC1')))
+        out = _send(node, _frame(entry, BAD, {'depth/image_rect': array_to_image(
+            depth, '32FC1')}))
         (registered,) = [m for t, m in out if t == '/depth_registered/image_rect']
         return node.drops, image_to_array(registered)
     finally:

@@ -27,11 +27,11 @@ TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 Stored = tuple[str, int, bytes]  # topic, timestamp, bytes
 
 
-def _write(bag: Path, *, frames: int = 40) -> list[Stored]:
+def _write(bag: Path, *, frames: int = 40, compress: bool = True) -> list[Stored]:
     """A recording of images (noise: they do not compress) and camera_infos, its chunks
     closed by size and by flushes; the messages as stored, in order."""
     rng = np.random.default_rng(7)
-    with BagWriter(bag, keep_partial=True) as writer:
+    with BagWriter(bag, keep_partial=True, compress=compress) as writer:
         for i in range(frames):
             size = int(rng.integers(40, 160))
             image = array_to_image(rng.integers(0, 256, (size, 400), dtype=np.uint8), 'mono8')
@@ -164,6 +164,57 @@ def test_a_damaged_chunk_is_skipped_and_the_rest_recovered(
     lost = {m for m in original[1] if ends[3][1] < m[1] <= ends[4][1]}
     assert lost
     assert _stored(bag) == [m for m in original[1] if m not in lost]
+
+
+def test_a_cut_uncompressed_chunk_gives_its_complete_records(tmp_path: Path) -> None:
+    """Chunks stored without compression: the chunk the file is cut inside gives the
+    messages whose records are complete, as they are."""
+    bag = tmp_path / 'plain' / 'rec'
+    messages = _write(bag, frames=12, compress=False)
+    size = _chunk_ends(bag)[3][0] - 200  # near the end of chunk 4's records
+    cut = _cut(bag, tmp_path / 'cut' / 'rec', size)
+    result = reindex_bag(cut)
+    recovered = _stored(cut)
+    assert result.scans[0][1].cut_chunk_messages >= 2
+    assert len(recovered) == len(_expected((bag, messages), size)) + (
+        result.scans[0][1].cut_chunk_messages)
+    assert recovered == messages[:len(recovered)]
+
+
+def _record(op: int, *fields: bytes) -> bytes:
+    content = b''.join(fields)
+    return bytes([op]) + struct.pack('<Q', len(content)) + content
+
+
+def _string(text: str) -> bytes:
+    return struct.pack('<I', len(text)) + text.encode()
+
+
+def test_a_record_too_short_to_be_a_message_ends_its_chunk(tmp_path: Path) -> None:
+    """An MCAP file made by hand: a chunk whose second message record is 5 bytes long
+    (a message's fields take 22): the first message comes back, the rest of the chunk
+    cannot be trusted and does not."""
+    definition = TYPESTORE.generate_msgdef('std_msgs/msg/String', ros_version=2)[0]
+    message = TYPESTORE.serialize_cdr(TYPESTORE.types['std_msgs/msg/String'](data='hi'),
+                                      'std_msgs/msg/String')
+    records = b''.join([
+        _record(0x03, struct.pack('<H', 1), _string('std_msgs/msg/String'),
+                _string('ros2msg'), _string(definition)),
+        _record(0x04, struct.pack('<HH', 1, 1), _string('/chatter'), _string('cdr'),
+                struct.pack('<I', 0)),
+        _record(0x05, struct.pack('<HIQQ', 1, 0, 5, 5), bytes(message)),
+        _record(0x05, b'\x01\x00\x00\x00\x00'),
+        _record(0x05, struct.pack('<HIQQ', 1, 0, 6, 6), bytes(message))])
+    chunk = _record(0x06, struct.pack('<QQQI', 5, 6, len(records), 0), _string(''),
+                    struct.pack('<Q', len(records)), records)
+    bag = tmp_path / 'rec'
+    bag.mkdir()
+    (bag / 'rec.mcap').write_bytes(b'\x89MCAP0\r\n' + _record(0x01, _string('ros2'),
+                                                                   _string('by hand'))
+                                   + chunk + _record(0x0F, struct.pack('<I', 0)))
+    result = reindex_bag(bag)
+    assert result.counts == {'/chatter': 1}
+    assert _stored(bag) == [('/chatter', 5, bytes(message))]
 
 
 def test_reindex_into_another_folder_leaves_the_bag_as_it_is(

@@ -144,14 +144,17 @@ def _record(op: int, content: bytes | memoryview) -> Record | None:
 
 def _records(data: bytes | memoryview) -> Iterator[Record]:
     """The schema, channel and message records of a chunk's records, complete ones only
-    (the end of cut data is dropped)."""
+    (the end of cut data, or a record too short to be one, ends them)."""
     at = 0
     while at + 9 <= len(data):
         op = data[at]
         length = int.from_bytes(data[at + 1:at + 9], 'little')
         if op not in KNOWN_OPCODES or at + 9 + length > len(data):
             return
-        record = _record(op, data[at + 9:at + 9 + length])
+        try:
+            record = _record(op, data[at + 9:at + 9 + length])
+        except (struct.error, UnicodeDecodeError):
+            return
         if record is not None:
             yield record
         at += 9 + length

@@ -126,21 +126,17 @@ def reindex_bag(path: str | Path, out: str | Path | None = None, *,
     files = mcap_files(bag)
     if out is None and _opens(bag):
         return Reindexed(bag)
-    work = None
-    if out is None:  # beside the bag, so that the files move by renaming
-        work = Path(tempfile.mkdtemp(prefix=f'.{bag.name}.reindex-', dir=bag.parent))
-    target = Path(out) if out is not None else work / bag.name  # type: ignore[operator]
+    if out is not None:
+        return _recover(files, BagWriter(Path(out), overwrite=overwrite))
+    # beside the bag, so that the files move into it by renaming
+    work = Path(tempfile.mkdtemp(prefix=f'.{bag.name}.reindex-', dir=bag.parent))
     try:
-        result = _recover(files, BagWriter(target, overwrite=overwrite))
-        if out is not None:
-            result.bag = target
-            return result
+        result = _recover(files, BagWriter(work / bag.name))
+        result.kept = _swap_in(bag, files, work / bag.name)
         result.bag = bag
-        result.kept = _swap_in(bag, files, target)
         return result
     finally:
-        if work is not None:
-            shutil.rmtree(work, ignore_errors=True)
+        shutil.rmtree(work, ignore_errors=True)
 
 
 def _recover(files: list[Path], writer: BagWriter) -> Reindexed:
