@@ -264,17 +264,17 @@ def test_an_extreme_depth_writes_its_footprint_only(z: float, pose: str) -> None
     covers and no other, as the plain reference does. A pixel of 1e-30 m seen from 2 cm
     beside it projects ~1e30 px away: the float loop bound became the most negative integer
     when converted and the pixel filled its whole row (issue 33)."""
-    cam = Intrinsics(60.0, 60.0, 31.5, 23.5, 64, 48)
+    cam = Intrinsics(30.0, 30.0, 15.5, 11.5, 32, 24)
     R, t = ((np.eye(3), np.array([0.02, 0.0, 0.0])) if pose == 'beside' else
             (rotation_matrix(quaternion_from_rpy(0.3, -0.4, 0.2)), np.array([0.02, 0.01, 0.0])))
-    for v, u in ((23, 31), (0, 0), (47, 63), (10, 50)):
-        depth = np.full((48, 64), np.nan, np.float32)
+    for v, u in ((11, 15), (0, 0), (23, 31), (5, 25)):
+        depth = np.full((24, 32), np.nan, np.float32)
         depth[v, u] = z
         out = register_depth(depth, cam, cam, R, t)
         np.testing.assert_array_equal(out, register_reference(depth, cam, cam, R, t))
         assert np.isfinite(out).sum() <= 4, (v, u)  # a pixel's footprint, never a row
-    one = np.full((48, 64), np.nan, np.float32)
-    one[23, 31] = 1e-30
+    one = np.full((24, 32), np.nan, np.float32)
+    one[11, 15] = 1e-30
     assert np.isnan(register_depth(one, cam, cam, np.eye(3), np.array([0.02, 0.0, 0.0]))).all()
 
 
