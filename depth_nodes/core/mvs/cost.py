@@ -64,21 +64,26 @@ class SweepCostInputs:
     """What the cost of any row needs, prepared once per reference frame; :meth:`rows`
     fills any band of rows (the matcher never holds more than its bands).
 
+    Images are flat (H * W, row after row).
+
     Attributes:
-        ref_census: (H, W) census of the reference image.
-        ref_grey: (H, W) float32 reference intensities.
-        src_census: (K, H, W) census of the source images.
-        src_grey: (K, H, W) float32 source intensities, brightness matched to the reference.
+        ref_census: (H * W,) census of the reference image.
+        ref_grey: (H * W,) float32 reference intensities.
+        src_census: (K, H * W) census of the source images.
+        src_grey: (K, H * W) float32 source intensities, brightness matched to the
+            reference.
         k_inv: (3, 3) inverse of the reference camera matrix.
         normal: (3,) the planes' unit normal, reference frame.
         a_matrix: (K, 3, 3) ``K_j R_j K_ref^-1``.
         b_vector: (K, 3) ``K_j t_j``.
-        rho: (D,) inverse depth of each label.
+        rho: (D,) float32 inverse depth of each label.
         census_weight: Weight of the Hamming distance.
         intensity_weight: Weight of the absolute difference.
         truncation: Cap of the absolute difference, grey levels.
         best_k: Views averaged per label (at most the views that see the point).
         unseen_cost: Cost of a label no source view sees.
+        height: H.
+        width: W.
     """
 
     ref_census: NDArray[Any]
@@ -96,21 +101,24 @@ class SweepCostInputs:
     best_k: int
     unseen_cost: int
 
+    height: int
+    width: int
+
     @property
     def shape(self) -> tuple[int, int, int]:
         """(H, W, D) of the volume."""
-        h, w = self.ref_grey.shape
-        return h, w, len(self.rho)
+        return self.height, self.width, len(self.rho)
 
     def rows(self, y0: int, out: U8) -> U8:
         """Rows y0 .. y0 + len(out) - 1 of the cost volume, into ``out`` (one thread)."""
-        views = self.src_grey.shape[0]
-        scratch = np.empty((views, len(self.rho)), np.int32)
-        order = np.empty(views, np.int32)
+        views, n = self.src_grey.shape[0], len(self.rho)
         _sweep_rows(self.ref_census, self.ref_grey, self.src_census, self.src_grey, self.k_inv,
                     self.normal, self.a_matrix, self.b_vector, self.rho, y0,
                     self.census_weight, self.intensity_weight, self.truncation, self.best_k,
-                    self.unseen_cost, scratch, order, out)
+                    self.unseen_cost, np.empty((views, n), np.int32),
+                    np.empty(views, np.int32), np.empty(n, np.int32),
+                    np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.bool_),
+                    out)
         return out
 
 
@@ -184,27 +192,13 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
         k_src = camera_matrix(cam)
         a_matrix[j] = k_src @ np.asarray(rotation, np.float64) @ k_inv
         b_vector[j] = k_src @ np.asarray(translation, np.float64)
-    return SweepCostInputs(ref_census, ref_grey, src_census, src_grey, k_inv,
-                           planes.unit_normal, a_matrix, b_vector, planes.inverse_depths(),
+    h, w = ref.shape
+    return SweepCostInputs(ref_census.reshape(-1), ref_grey.reshape(-1),
+                           src_census.reshape(len(sources), -1),
+                           src_grey.reshape(len(sources), -1), k_inv, planes.unit_normal,
+                           a_matrix, b_vector, planes.inverse_depths().astype(np.float32),
                            int(census_weight), int(intensity_weight), int(truncation),
-                           int(best_k), int(unseen_cost))
-
-
-@njit(cache=True, nogil=True, inline='always')
-def _bilinear(image: F32, u: float, v: float) -> float:
-    """``image`` at (u, v), both inside [0, W - 1] x [0, H - 1]."""
-    h, w = image.shape
-    x0 = min(int(u), w - 2)
-    y0 = min(int(v), h - 2)
-    fx = u - x0
-    fy = v - y0
-    p00 = np.float64(image[y0, x0])
-    p01 = np.float64(image[y0, x0 + 1])
-    p10 = np.float64(image[y0 + 1, x0])
-    p11 = np.float64(image[y0 + 1, x0 + 1])
-    top = p00 + fx * (p01 - p00)
-    bottom = p10 + fx * (p11 - p10)
-    return top + fy * (bottom - top)
+                           int(best_k), int(unseen_cost), h, w)
 
 
 @njit(cache=True, nogil=True, inline='always')
@@ -235,15 +229,25 @@ def _best_k_mean(costs: NDArray[np.int32], order: NDArray[np.int32], views: int,
 @no_nrt_kernel()
 def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any],
                 src_grey: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector: F64,
-                rho: F64, y0: int, census_weight: int, intensity_weight: int,
-                truncation: int, best_k: int, unseen_cost: int,
-                scratch: NDArray[np.int32], order: NDArray[np.int32], out: U8) -> None:
+                rho: F32, y0: int, census_weight: int, intensity_weight: int,
+                truncation: int, best_k: int, unseen_cost: int, scratch: NDArray[np.int32],
+                order: NDArray[np.int32], index: NDArray[np.int32], frac_u: F32,
+                frac_v: F32, inside: NDArray[np.bool_], out: U8) -> None:
+    """Rows of the volume. Images are flat (H * W); per pixel and view, a first loop over
+    the labels (vectorised) finds each label's source pixel, its bilinear fractions and
+    whether it is inside; a second one reads the source there."""
     rows, w, n = out.shape
     views = src_grey.shape[0]
-    h = ref_grey.shape[0]
-    umax = np.float64(w - 1)
-    vmax = np.float64(h - 1)
-    cap = np.float64(truncation)
+    h = ref_grey.shape[0] // w
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    half = np.float32(0.5)
+    umax = np.float32(w - 1)
+    vmax = np.float32(h - 1)
+    # the bilinear base pixel stays one short of the last row and column
+    ulast = np.float32(w - 1) - np.float32(1e-3)
+    vlast = np.float32(h - 1) - np.float32(1e-3)
+    cap = np.float32(truncation)
     for yy in range(rows):
         y = y0 + yy
         for x in range(w):
@@ -256,35 +260,55 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
                 for k in range(n):
                     cell[k] = np.uint8(unseen_cost)
                 continue
-            cr = ref_census[y, x]
-            ir = np.float64(ref_grey[y, x])
+            at = y * w + x
+            cr = ref_census[at]
+            ir = ref_grey[at]
             for j in range(views):
-                a0 = a_matrix[j, 0, 0] * x + a_matrix[j, 0, 1] * y + a_matrix[j, 0, 2]
-                a1 = a_matrix[j, 1, 0] * x + a_matrix[j, 1, 1] * y + a_matrix[j, 1, 2]
-                a2 = a_matrix[j, 2, 0] * x + a_matrix[j, 2, 1] * y + a_matrix[j, 2, 2]
-                b0 = b_vector[j, 0] * s
-                b1 = b_vector[j, 1] * s
-                b2 = b_vector[j, 2] * s
+                a0 = np.float32(a_matrix[j, 0, 0] * x + a_matrix[j, 0, 1] * y + a_matrix[j, 0, 2])
+                a1 = np.float32(a_matrix[j, 1, 0] * x + a_matrix[j, 1, 1] * y + a_matrix[j, 1, 2])
+                a2 = np.float32(a_matrix[j, 2, 0] * x + a_matrix[j, 2, 1] * y + a_matrix[j, 2, 2])
+                b0 = np.float32(b_vector[j, 0] * s)
+                b1 = np.float32(b_vector[j, 1] * s)
+                b2 = np.float32(b_vector[j, 2] * s)
+                for k in range(n):  # vectorises
+                    r = rho[k]
+                    wz = a2 + r * b2
+                    inv = one / wz
+                    u = (a0 + r * b0) * inv
+                    v = (a1 + r * b1) * inv
+                    inside[k] = (wz > zero) & (u >= zero) & (u <= umax) & (v >= zero) & \
+                        (v <= vmax)
+                    uc = min(max(u, zero), ulast)
+                    vc = min(max(v, zero), vlast)
+                    xi = np.int32(uc)
+                    yi = np.int32(vc)
+                    frac_u[k] = uc - np.float32(xi)
+                    frac_v[k] = vc - np.float32(yi)
+                    index[k] = yi * np.int32(w) + xi
                 census_j = src_census[j]
                 grey_j = src_grey[j]
+                row = scratch[j]
                 for k in range(n):
-                    wz = a2 + rho[k] * b2
-                    if not wz > MIN_W:
-                        scratch[j, k] = -1
+                    if not inside[k]:
+                        row[k] = -1
                         continue
-                    u = (a0 + rho[k] * b0) / wz
-                    v = (a1 + rho[k] * b1) / wz
-                    if not (0.0 <= u <= umax and 0.0 <= v <= vmax):
-                        scratch[j, k] = -1
-                        continue
-                    value = 0
+                    i0 = np.intp(index[k])
+                    fu = frac_u[k]
+                    fv = frac_v[k]
+                    value = np.int32(0)
                     if census_weight:
-                        bits = cr ^ census_j[int(v + 0.5), int(u + 0.5)]
-                        value += census_weight * int(popcount(bits))
+                        near = i0 + np.intp(fu >= half) + np.intp(w) * np.intp(fv >= half)
+                        value += np.int32(census_weight) * np.int32(popcount(cr ^ census_j[near]))
                     if intensity_weight:
-                        diff = min(abs(ir - _bilinear(grey_j, u, v)), cap)
-                        value += int(intensity_weight * diff + 0.5)
-                    scratch[j, k] = min(value, TOP_COST)
+                        p00 = grey_j[i0]
+                        p01 = grey_j[i0 + 1]
+                        p10 = grey_j[i0 + w]
+                        p11 = grey_j[i0 + w + 1]
+                        top = p00 + fu * (p01 - p00)
+                        bottom = p10 + fu * (p11 - p10)
+                        diff = min(abs(ir - (top + fv * (bottom - top))), cap)
+                        value += np.int32(np.float32(intensity_weight) * diff + half)
+                    row[k] = min(value, np.int32(TOP_COST))
             for k in range(n):
                 cell[k] = np.uint8(_best_k_mean(scratch, order, views, k, best_k,
                                                 unseen_cost))
@@ -297,48 +321,60 @@ def sweep_cost_volume(inputs: SweepCostInputs) -> U8:
 
 
 def sweep_cost_reference(inputs: SweepCostInputs) -> U8:
-    """Plain numpy version of :func:`sweep_cost_volume` (same rounding)."""
+    """Plain numpy version of :func:`sweep_cost_volume`: the same float32 arithmetic in
+    the same order, so the same integers."""
     h, w, n = inputs.shape
     views = inputs.src_grey.shape[0]
+    f32 = np.float32
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    rays = np.stack([xs, ys, np.ones_like(xs)], axis=-1) @ inputs.k_inv.T
-    s = rays @ inputs.normal
+    pixels = np.stack([xs, ys, np.ones_like(xs)], axis=-1)
+    k = inputs.k_inv
+    rays = [k[i, 0] * xs + k[i, 1] * ys + k[i, 2] for i in range(3)]
+    s = inputs.normal[0] * rays[0] + inputs.normal[1] * rays[1] + inputs.normal[2] * rays[2]
     costs = np.full((views, h, w, n), -1, np.int64)
     hamming = np.vectorize(lambda v: bin(int(v)).count('1'), otypes=[np.int64])
-    pixels = np.stack([xs, ys, np.ones_like(xs)], axis=-1)
+    ref_census = inputs.ref_census.reshape(h, w)
+    ref_grey = inputs.ref_grey.reshape(h, w)
     for j in range(views):
-        a = pixels @ inputs.a_matrix[j].T  # (h, w, 3)
-        for k, rho in enumerate(inputs.rho):
-            q = a + (rho * s)[..., None] * inputs.b_vector[j]
-            with np.errstate(divide='ignore', invalid='ignore'):
-                u, v = q[..., 0] / q[..., 2], q[..., 1] / q[..., 2]
-            ok = (s > 1e-12) & (q[..., 2] > MIN_W) & (u >= 0) & (u <= w - 1) & (v >= 0) & \
-                (v <= h - 1)
+        m = inputs.a_matrix[j]
+        a = [(m[i, 0] * pixels[..., 0] + m[i, 1] * pixels[..., 1] + m[i, 2]).astype(f32)
+             for i in range(3)]
+        b = [(inputs.b_vector[j, i] * s).astype(f32) for i in range(3)]
+        census = inputs.src_census[j].reshape(h, w)
+        grey = inputs.src_grey[j].reshape(-1)
+        for label in range(n):
+            r = inputs.rho[label]
+            with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
+                wz = a[2] + r * b[2]
+                inv = f32(1.0) / wz
+                u = (a[0] + r * b[0]) * inv
+                v = (a[1] + r * b[1]) * inv
+            ok = (s > 1e-12) & (wz > 0) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+            uc = np.minimum(np.maximum(np.where(ok, u, 0), f32(0)), f32(w - 1) - f32(1e-3))
+            vc = np.minimum(np.maximum(np.where(ok, v, 0), f32(0)), f32(h - 1) - f32(1e-3))
+            xi, yi = uc.astype(np.int32), vc.astype(np.int32)
+            fu, fv = (uc - xi.astype(f32)).astype(f32), (vc - yi.astype(f32)).astype(f32)
             value = np.zeros((h, w), np.int64)
-            uu, vv = np.where(ok, u, 0.0), np.where(ok, v, 0.0)
             if inputs.census_weight:
-                near = inputs.src_census[j][(vv + 0.5).astype(int), (uu + 0.5).astype(int)]
-                value += inputs.census_weight * hamming(inputs.ref_census ^ near)
+                near = census[yi + (fv >= 0.5), xi + (fu >= 0.5)]
+                value += inputs.census_weight * hamming(ref_census ^ near)
             if inputs.intensity_weight:
-                x0 = np.minimum(uu.astype(int), w - 2)
-                y0 = np.minimum(vv.astype(int), h - 2)
-                fx, fy = uu - x0, vv - y0
-                g = inputs.src_grey[j].astype(np.float64)
-                top = g[y0, x0] + fx * (g[y0, x0 + 1] - g[y0, x0])
-                bottom = g[y0 + 1, x0] + fx * (g[y0 + 1, x0 + 1] - g[y0 + 1, x0])
-                diff = np.minimum(np.abs(inputs.ref_grey - (top + fy * (bottom - top))),
-                                  inputs.truncation)
-                value += (inputs.intensity_weight * diff + 0.5).astype(np.int64)
-            costs[j, ..., k] = np.where(ok, np.minimum(value, TOP_COST), -1)
+                i0 = yi.astype(np.int64) * w + xi
+                p00, p01, p10, p11 = grey[i0], grey[i0 + 1], grey[i0 + w], grey[i0 + w + 1]
+                top = p00 + fu * (p01 - p00)
+                bottom = p10 + fu * (p11 - p10)
+                diff = np.minimum(np.abs(ref_grey - (top + fv * (bottom - top))),
+                                  f32(inputs.truncation))
+                value += (f32(inputs.intensity_weight) * diff + f32(0.5)).astype(np.int64)
+            costs[j, ..., label] = np.where(ok, np.minimum(value, TOP_COST), -1)
     valid = costs >= 0
-    big = np.where(valid, costs, np.iinfo(np.int64).max)
-    ordered = np.sort(big, axis=0)
+    big = np.iinfo(np.int64).max
+    ordered = np.sort(np.where(valid, costs, big), axis=0)
     seen = valid.sum(axis=0)
     used = np.minimum(seen, inputs.best_k)
     total = np.zeros((h, w, n), np.int64)
     for i in range(views):
-        total += np.where(i < used, np.where(ordered[i] == np.iinfo(np.int64).max, 0,
-                                             ordered[i]), 0)
+        total += np.where(i < used, ordered[i], 0)
     mean = (2 * total + used) // np.maximum(2 * used, 1)
     out: U8 = np.where(seen > 0, mean, inputs.unseen_cost).astype(np.uint8)
     return out

@@ -357,6 +357,6 @@ class MvsStream:
             turned = last.pose.angle_to(frame.pose) >= self.stream.keyframe_angle_deg
             if not (far or turned):
                 return
-        census = result.inputs.ref_census if result is not None else None
+        census = None if result is None else result.inputs.ref_census.reshape(image.shape)
         self.keyframes.append(_Keyframe(image.copy(), frame.camera, frame.pose, census,
                                         None if depth is None else depth.copy()))
