@@ -1,7 +1,7 @@
 """Multi-view stereo node: depth for one moving camera whose poses a visual odometry or SLAM
 system publishes, or for a rig of synchronised cameras with fixed extrinsics.
 
-One camera (``cameras`` empty): subscribes ``image`` (rectified: grey, colour, Bayer or
+One camera (``cameras`` empty): subscribes ``image_rect`` (grey, colour, Bayer or
 16-bit; raw or through ``image_transport``) and ``camera_info`` (matched by exact stamp),
 and the poses of ``pose_source``: ``odom`` (nav_msgs/Odometry), ``pose``
 (geometry_msgs/PoseStamped) or ``/tf`` (where tf2_msgs is installed), taken at each image's
@@ -10,11 +10,12 @@ the most recent keyframes that are far enough from it (plane sweep with SGM over
 planes, best-k views, :mod:`depth_nodes.core.mvs`), its estimate checked against the
 keyframes' depths and fused over time with the estimates before it, moved with the poses.
 
-A rig (``cameras: [a, b, c]``): subscribes ``<camera>/image`` and ``<camera>/camera_info``
-of each, all matched by exact stamp; ``rig_extrinsics`` places each camera's optical frame
-on the rig (7 numbers each: x y z qx qy qz qw); ``reference_camera`` is the one whose depth
-is published, swept against the others at the same stamp and, with a pose source, against
-its own earlier keyframes (``pose_source: none``: a rig that does not move).
+A rig (``cameras: [a, b, c]``): subscribes ``<camera>/image_rect`` and
+``<camera>/camera_info`` of each, all matched by exact stamp; ``rig_extrinsics`` places
+each camera's optical frame on the rig (7 numbers each: x y z qx qy qz qw);
+``reference_camera`` is the one whose depth is published, swept against the others at the
+same stamp and, with a pose source, against its own earlier keyframes (``pose_source:
+none``: a rig that does not move).
 
 Publishes, stamped with the reference image's stamp and in its frame:
 
@@ -93,8 +94,8 @@ PARAMETERS = [
     IMAGE_TRANSPORT,
     *pose_parameters(allow_none=True),
     ParamSpec('cameras', [''], 'A rig: the namespaces of its synchronised cameras (each with '
-              'image and camera_info), e.g. [left, centre, right]; [\'\'] or []: one camera '
-              '(image, camera_info)', read_only=True),
+              'image_rect and camera_info), e.g. [left, centre, right]; [\'\'] or []: one camera '
+              '(image_rect, camera_info)', read_only=True),
     ParamSpec('reference_camera', 0, 'A rig: the index of the camera whose depth is published',
               0, 63, read_only=True),
     ParamSpec('rig_extrinsics', [0.0], 'A rig: each camera\'s optical frame on the rig, 7 '
@@ -168,7 +169,8 @@ class MultiViewStereoNode(DepthNode):
         names = [f'{c}/' for c in self.cameras] or ['']
         inputs: list[Any] = []
         for prefix in names:
-            inputs += [(Image, f'{prefix}image', transport), (CameraInfo, f'{prefix}camera_info')]
+            inputs += [(Image, f'{prefix}image_rect', transport),
+                       (CameraInfo, f'{prefix}camera_info')]
         self.add_synced_inputs(inputs, self.on_images, queue_size=values['queue_size'])
 
     def _extrinsics(self, values: Mapping[str, Any]) -> list[Pose]:
@@ -200,11 +202,12 @@ class MultiViewStereoNode(DepthNode):
         views = []
         for k in range(len(msgs) // 2):
             image, info = msgs[2 * k], msgs[2 * k + 1]
-            what = f'{self.cameras[k]}/image' if self.cameras else 'image'
+            what = f'{self.cameras[k]}/image_rect' if self.cameras else 'image_rect'
             grey = self.gray_image(image, what)
             if grey is None:
                 return
-            camera = self._camera(info, what.replace('image', 'camera_info'), grey.shape)
+            camera = self._camera(info, what.replace('image_rect', 'camera_info'),
+                                  grey.shape)
             if camera is None:
                 return
             views.append((grey, camera, info))

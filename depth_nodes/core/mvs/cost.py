@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from depth_nodes.core.depth_image import Intrinsics
@@ -111,12 +110,12 @@ class SweepCostInputs:
 
     def rows(self, y0: int, out: U8) -> U8:
         """Rows y0 .. y0 + len(out) - 1 of the cost volume, into ``out`` (one thread)."""
-        views, n = self.src_grey.shape[0], len(self.rho)
+        n = len(self.rho)
         _sweep_rows(self.ref_census, self.ref_grey, self.src_census, self.src_grey, self.k_inv,
                     self.normal, self.a_matrix, self.b_vector, self.rho, y0,
                     self.census_weight, self.intensity_weight, self.truncation, self.best_k,
-                    self.unseen_cost, np.empty((views, n), np.int32),
-                    np.empty(views, np.int32), np.empty(n, np.int32),
+                    self.unseen_cost, np.empty((self.best_k, n), np.int32),
+                    np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32),
                     np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.bool_),
                     out)
         return out
@@ -201,41 +200,23 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
                            int(best_k), int(unseen_cost), h, w)
 
 
-@njit(cache=True, nogil=True, inline='always')
-def _best_k_mean(costs: NDArray[np.int32], order: NDArray[np.int32], views: int,
-                 label: int, best_k: int, unseen: int) -> int:
-    """The rounded mean of the ``best_k`` smallest non-negative ``costs[:, label]`` (all
-    of them when fewer see it); ``unseen`` when none does."""
-    n = 0
-    for j in range(views):  # insertion sort of the valid costs: K is small
-        c = costs[j, label]
-        if c < 0:
-            continue
-        i = n
-        while i > 0 and order[i - 1] > c:
-            order[i] = order[i - 1]
-            i -= 1
-        order[i] = c
-        n += 1
-    if n == 0:
-        return unseen
-    used = min(n, best_k)
-    total = 0
-    for i in range(used):
-        total += order[i]
-    return (2 * total + used) // (2 * used)
+#: Cost of a view that does not see a label, in the kernel's sorting (above any real one).
+_UNSEEN = 1 << 20
 
 
 @no_nrt_kernel()
 def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any],
                 src_grey: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector: F64,
                 rho: F32, y0: int, census_weight: int, intensity_weight: int,
-                truncation: int, best_k: int, unseen_cost: int, scratch: NDArray[np.int32],
-                order: NDArray[np.int32], index: NDArray[np.int32], frac_u: F32,
+                truncation: int, best_k: int, unseen_cost: int, best: NDArray[np.int32],
+                row: NDArray[np.int32], seen: NDArray[np.int32], index: NDArray[np.int32],
+                frac_u: F32,
                 frac_v: F32, inside: NDArray[np.bool_], out: U8) -> None:
     """Rows of the volume. Images are flat (H * W); per pixel and view, a first loop over
     the labels (vectorised) finds each label's source pixel, its bilinear fractions and
-    whether it is inside; a second one reads the source there."""
+    whether it is inside; a second one reads the source there; a third merges the view's
+    costs into the ``best_k`` smallest so far of each label (``best``, sorted, a
+    compare-exchange per rank: branch-free over the labels)."""
     rows, w, n = out.shape
     views = src_grey.shape[0]
     h = ref_grey.shape[0] // w
@@ -263,6 +244,11 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
             at = y * w + x
             cr = ref_census[at]
             ir = ref_grey[at]
+            for i in range(best_k):
+                for k in range(n):
+                    best[i, k] = _UNSEEN
+            for k in range(n):
+                seen[k] = 0
             for j in range(views):
                 a0 = np.float32(a_matrix[j, 0, 0] * x + a_matrix[j, 0, 1] * y + a_matrix[j, 0, 2])
                 a1 = np.float32(a_matrix[j, 1, 0] * x + a_matrix[j, 1, 1] * y + a_matrix[j, 1, 2])
@@ -287,10 +273,9 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
                     index[k] = yi * np.int32(w) + xi
                 census_j = src_census[j]
                 grey_j = src_grey[j]
-                row = scratch[j]
                 for k in range(n):
                     if not inside[k]:
-                        row[k] = -1
+                        row[k] = _UNSEEN
                         continue
                     i0 = np.intp(index[k])
                     fu = frac_u[k]
@@ -309,9 +294,20 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
                         diff = min(abs(ir - (top + fv * (bottom - top))), cap)
                         value += np.int32(np.float32(intensity_weight) * diff + half)
                     row[k] = min(value, np.int32(TOP_COST))
+                for k in range(n):
+                    seen[k] += np.int32(row[k] < _UNSEEN)
+                for i in range(best_k):  # row carries the larger one on down the ranks
+                    for k in range(n):
+                        low = min(best[i, k], row[k])
+                        row[k] = max(best[i, k], row[k])
+                        best[i, k] = low
             for k in range(n):
-                cell[k] = np.uint8(_best_k_mean(scratch, order, views, k, best_k,
-                                                unseen_cost))
+                used = min(seen[k], best_k)
+                total = np.int32(0)
+                for i in range(best_k):
+                    total += best[i, k] if i < used else np.int32(0)
+                mean = (2 * total + used) // max(2 * used, 1)
+                cell[k] = np.uint8(mean if used > 0 else unseen_cost)
 
 
 def sweep_cost_volume(inputs: SweepCostInputs) -> U8:

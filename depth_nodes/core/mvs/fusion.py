@@ -10,9 +10,10 @@ carried to first order plus process noise), then each pixel fuses its new measur
 
 * ``kalman``: a Gaussian in inverse depth. A measurement within ``gate`` standard
   deviations of the prediction is fused (variance-weighted mean) and counts as an inlier
-  (``a``); one outside counts as an outlier (``b``) and is ignored, and when the outliers
-  outnumber the inliers the pixel starts over from the measurement (a surface that moved,
-  or a wrong first guess).
+  (``a``); one outside counts as an outlier (``b``) and is ignored, unless it is more
+  precise than the prediction (a wider baseline contradicting a guess from a shorter one)
+  or the outliers now outnumber the inliers (a surface that moved): the pixel then starts
+  over from the measurement.
 * ``gauss_uniform``: Vogiatzis and Hernandez's parametric model (2011, "Video-based,
   real-time multi-view stereo"; the filter of SVO / REMODE): a measurement is a good one,
   Gaussian around the true inverse depth, with probability ``pi``, else uniform over the
@@ -263,7 +264,9 @@ def _fuse_kernel(rho: F32, var: F32, a: F32, b: F32, rho_m: F32, var_m: F32, met
                     b[y, x] = 0.0
                 else:
                     b[y, x] += 1.0
-                    if b[y, x] > a[y, x]:  # the outliers win: start over
+                    # the outliers win, or a measurement more precise than the estimate
+                    # contradicts it (a first guess from a short baseline): start over
+                    if b[y, x] > a[y, x] or vm < vp:
                         rho[y, x] = m
                         var[y, x] = vm
                         a[y, x] = 1.0
@@ -337,7 +340,7 @@ def fuse_reference(state: FilterState, rho_m: F32, var_m: F32,
                     out.b[y, x] = 0.0
                 else:
                     out.b[y, x] += 1.0
-                    if out.b[y, x] > out.a[y, x]:
+                    if out.b[y, x] > out.a[y, x] or vm < vp:
                         out.rho[y, x], out.var[y, x], out.a[y, x], out.b[y, x] = m, vm, 1, 0
                 continue
             aa, bb = float(out.a[y, x]), float(out.b[y, x])

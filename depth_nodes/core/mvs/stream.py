@@ -77,9 +77,11 @@ class StreamParams:
     dither: bool = setting(True, 'Shift the planes by a different fraction of a step in '
                            'every frame, so that the filter averages out the sub-plane '
                            "refinement's bias")
-    check_px: float = setting(1.0, 'Geometric check: largest round-trip distance, px (0: '
-                              'no check)', low=0.0, high=100.0)
-    check_relative: float = setting(0.02, 'Geometric check: largest relative depth '
+    check_px: float = setting(1.0, 'Geometric check against the keyframes\' depths: largest '
+                              'round-trip distance, px (0: no check); a contradicted estimate '
+                              'is not fused into one the filter has, and its confidence is '
+                              'halved', low=0.0, high=100.0)
+    check_relative: float = setting(0.05, 'Geometric check: largest relative depth '
                                     'difference', low=0.0, high=1.0)
 
     def validate(self) -> StreamParams:
@@ -276,10 +278,9 @@ class MvsStream:
         self._frames += 1
         offset = (self._frames * GOLDEN) % 1.0 if self.stream.dither else 0.0
         result = self.matcher.match(image, frame.camera, sources, offset=offset)
-        rho = result.rho.copy()
-        if self.stream.check_px > 0:
-            self._check_geometry(frame, keyframes, result, rho)
-        depth = self._filtered(frame, result, rho)
+        contradicted = self._contradicted(frame, keyframes, result) \
+            if self.stream.check_px > 0 else None
+        depth = self._filtered(frame, result, contradicted)
         self._maybe_keyframe(frame, image, result, depth.depth)
         depth.sources = len(sources)
         finite = depth.depth[np.isfinite(depth.depth)]
@@ -312,23 +313,28 @@ class MvsStream:
                            f'({self.params.planes}) must be fewer', frame)
         return None
 
-    def _check_geometry(self, frame: Frame, keyframes: list[_Keyframe], result: MvsResult,
-                        rho: F32) -> None:
-        """Drop the pixels that views with depth contradict and none confirms."""
+    def _contradicted(self, frame: Frame, keyframes: list[_Keyframe],
+                      result: MvsResult) -> NDArray[np.bool_] | None:
+        """The pixels whose new depth the keyframes' depths contradict, none confirming."""
         others = [(k.depth, camera_matrix(k.camera), frame.pose.relative_to(k.pose))
                   for k in keyframes if k.depth is not None]
         if not others:
-            return
+            return None
         checked, agreed = consistency(result.depth, camera_matrix(frame.camera), others,
                                       max_px=self.stream.check_px,
                                       max_relative=self.stream.check_relative)
-        rho[(checked > 0) & (agreed == 0)] = np.nan
+        out: NDArray[np.bool_] = (checked > 0) & (agreed == 0)
+        return out
 
-    def _filtered(self, frame: Frame, result: MvsResult, rho: F32) -> StreamDepth:
+    def _filtered(self, frame: Frame, result: MvsResult,
+                  contradicted: NDArray[np.bool_] | None) -> StreamDepth:
+        """Fuse the frame's estimate into the state moved from the previous frame; a
+        contradicted estimate is not fused where the state has one, and its confidence is
+        halved."""
         planes = self.params.planes_of()
         settings = self.stream.filter_settings(
             planes.inverse_depths()[-1] - planes.inverse_depths()[0])
-        shape = rho.shape
+        shape = result.rho.shape
         previous = self._previous
         if self.stream.depth_filter == 'none' or previous is None:
             state = FilterState.empty(shape)
@@ -337,6 +343,10 @@ class MvsStream:
                                camera_matrix(frame.camera),
                                previous.pose.relative_to(frame.pose), shape,
                                process_sigma=settings.process_sigma)
+        rho = result.rho
+        if contradicted is not None:
+            rho = rho.copy()
+            rho[contradicted & np.isfinite(state.rho)] = np.nan
         fuse(state, rho, result.rho_var, settings)
         self._previous = _Previous(state, frame.camera, frame.pose)
         depth = state.depth()
@@ -344,8 +354,9 @@ class MvsStream:
         done = converged(state, settings) if self.stream.depth_filter != 'none' else \
             np.zeros(shape, bool)
         confidence = np.where(np.isfinite(depth), result.confidence, 0.0).astype(np.float32)
-        with np.errstate(invalid='ignore'):
-            confidence[np.isfinite(depth) & ~np.isfinite(result.rho)] = 0.5  # the filter's
+        confidence[np.isfinite(depth) & ~np.isfinite(rho)] = 0.5  # the filter's alone
+        if contradicted is not None:
+            confidence[contradicted] *= 0.5
         return StreamDepth(depth, sigma, confidence, done, 0, result, frame)
 
     def _maybe_keyframe(self, frame: Frame, image: NDArray[Any], result: MvsResult | None,

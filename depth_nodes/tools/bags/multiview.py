@@ -6,7 +6,7 @@ One moving camera (namespace ``/mvs``; one stamp per frame, the bag timestamp eq
 ==================  ==============================  =========================================
 topic               type                            content
 ==================  ==============================  =========================================
-/mvs/image          sensor_msgs/Image mono8         the rectified grey image
+/mvs/image_rect     sensor_msgs/Image mono8         the rectified grey image
 /mvs/camera_info    sensor_msgs/CameraInfo          its pinhole camera (D zero, P = [K | 0])
 /mvs/odom           nav_msgs/Odometry               the reported pose (pose noise included):
                                                     the camera optical frame in ``world``
@@ -15,7 +15,7 @@ topic               type                            content
 /mvs/depth_gt       sensor_msgs/Image 32FC1         exact Z, NaN where nothing is hit
 ==================  ==============================  =========================================
 
-A rig (namespace ``/rig``): ``/rig/camN/image``, ``/rig/camN/camera_info`` and
+A rig (namespace ``/rig``): ``/rig/camN/image_rect``, ``/rig/camN/camera_info`` and
 ``/rig/camN/depth_gt`` per camera, the body's ``/rig/odom``, ``/rig/pose``,
 ``/rig/pose_gt``; and, for two-view stereo on the same views, the pair of the middle
 camera (left) and the one to its right as ``/stereo/left`` and ``/stereo/right``
@@ -103,7 +103,7 @@ def odometry_message(pose: Pose, stamp_ns: int, child: str) -> Odometry:
 def view_messages(view: SequenceView, ns: str, frame_id: str) -> list[tuple[str, Any]]:
     """The image, camera_info and depth of one view under ``ns``."""
     h = _header(view.stamp_ns, frame_id)
-    return [(f'{ns}/image', array_to_image(view.image, 'mono8', h)),
+    return [(f'{ns}/image_rect', array_to_image(view.image, 'mono8', h)),
             (f'{ns}/camera_info', model_to_camera_info(camera_model(view.intrinsics, frame_id),
                                                        h)),
             (f'{ns}/depth_gt', array_to_image(view.depth, '32FC1', h))]

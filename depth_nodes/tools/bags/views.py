@@ -14,8 +14,8 @@ Two formats of known cameras:
   undistorted first (their pinhole part kept).
 
 The bag (namespace ``/views`` by default; views ``1 / rate`` seconds apart, in the order of
-the file) holds ``image`` (the image as it is: mono8, rgb8 or mono16), ``camera_info`` (the
-pinhole camera: D zero, P = [K | 0]), ``pose`` (geometry_msgs/PoseStamped: the camera's
+the file) holds ``image_rect`` (the image as it is: mono8, rgb8 or mono16), ``camera_info``
+(the pinhole camera: D zero, P = [K | 0]), ``pose`` (geometry_msgs/PoseStamped: the camera's
 optical frame in the world) and ``odom`` (the same as nav_msgs/Odometry). Its metadata
 (:data:`VIEWS_KEY`) records the view names and the object's bounding box, if given, for
 `depth-nodes eval`.
@@ -84,7 +84,7 @@ class ViewsInfo:
     @property
     def image_topic(self) -> str:
         """The images' topic."""
-        return f'{self.namespace}/image'
+        return f'{self.namespace}/image_rect'
 
     @property
     def camera_info_topic(self) -> str:
@@ -281,8 +281,8 @@ def write_views_bag(views: list[View], out: str | Path, *, namespace: str = '/vi
                 header = pose_message(view.pose, stamp).header
                 header.frame_id = FRAME_ID
                 for topic, msg in (
-                        ('image', array_to_image(np.ascontiguousarray(pixels), encoding,
-                                                 header)),
+                        ('image_rect', array_to_image(np.ascontiguousarray(pixels),
+                                                      encoding, header)),
                         ('camera_info', model_to_camera_info(camera_model(view.camera,
                                                                           FRAME_ID), header)),
                         ('pose', pose_message(view.pose, stamp)),

@@ -14,8 +14,10 @@ from typing import Any, Generic, TypeVar
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.sim import StereoSimConfig
+from depth_nodes.sim.sequence import SequenceConfig
 from depth_nodes.sim.tof import ToFSimConfig
 from depth_nodes.tools import signals
+from depth_nodes.tools.bags import multiview as mvs
 from depth_nodes.tools.bags import structured_light as sl
 from depth_nodes.tools.bags import tof
 from depth_nodes.tools.bags.generate import PRESETS, write_stereo_bag
@@ -82,9 +84,16 @@ TOF = PresetKind[ToFSimConfig](
     write=lambda path, c, overwrite: tof.write_tof_bag(path, c, overwrite=overwrite),
     describe=lambda c: (f'{c.width}x{c.height}, {_frames(c.n_frames)} of '
                         f'{len(c.frequencies_mhz)} x {c.phase_steps} correlation planes'))
+MULTIVIEW = PresetKind[SequenceConfig](
+    mvs.PRESETS,
+    with_seed=lambda c, seed: dataclasses.replace(c, seed=seed),
+    with_frames=lambda c, frames: dataclasses.replace(c, n_frames=frames),
+    write=lambda path, c, overwrite: mvs.write_sequence_bag(path, c, overwrite=overwrite),
+    describe=lambda c: (f'{c.width}x{c.height}, {c.motion}, {_frames(c.n_frames)}' +
+                        (f' of {c.rig_cameras} cameras' if c.motion == 'rig' else '')))
 #: Every preset by name, in the order `--preset all` writes them.
 KINDS: dict[str, PresetKind[Any]] = {
-    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF) for name in kind.presets}
+    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF, MULTIVIEW) for name in kind.presets}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -92,8 +101,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('out', help='bag folder to create (a parent folder with --preset all)')
     parser.add_argument('--preset', default='stereo_vga',
                         help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye, '
-                        'structured_light_vga, tof_vga, all (these five), or bad_inputs (the '
-                        'hostile campaign, from --source)')
+                        'structured_light_vga, tof_vga, mvs_sideways, mvs_forward, mvs_orbit, '
+                        'mvs_rig (a moving camera, or a rig of three, with poses and exact '
+                        'depth), all (these nine), or bad_inputs (the hostile campaign, from '
+                        '--source)')
     parser.add_argument('--source', help='bad_inputs: stereo bag whose raw frames to use '
                         '(default: the bundled stereo_vga)')
     parser.add_argument('--seed', type=int, help='override the preset seed')

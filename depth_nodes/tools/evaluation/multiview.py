@@ -18,7 +18,8 @@ that many frames to converge):
 
 Without depth ground truth (``depth-nodes import-views``): per view, the share of its
 depths that a neighbouring view's depth confirms within 1 % (carried across with the known
-cameras: :mod:`depth_nodes.core.mvs.consistency`), the share of object points inside the
+cameras: :mod:`depth_nodes.core.mvs.consistency`; among the depths that land where a
+neighbour has one), the share of object points inside the
 bounding box given to import-views, and the object's coverage (pixels brighter than
 ``--object-threshold``, the share of them with a depth).
 """
@@ -317,7 +318,8 @@ def evaluate_views_bag(path: str | Path, *, depth_topic: str = '/views/depth',
         checked, agreed = consistency(depth, camera_matrix(camera), others, max_px=1.0,
                                       max_relative=agree)
         has = np.isfinite(depth)
-        agree_share = float((agreed > 0)[has].mean()) if has.any() else float('nan')
+        seen = has & (checked > 0)  # a neighbour has a depth where the point lands
+        agree_share = float((agreed > 0)[seen].mean()) if seen.any() else float('nan')
         inside = _inside_box(depth, camera, pose, info.bbox) if info.bbox else float('nan')
         image = image_to_array(found[info.image_topic][stamp]).astype(np.float32)
         grey = image.mean(axis=2) if image.ndim == 3 else image
