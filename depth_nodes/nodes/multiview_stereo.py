@@ -211,7 +211,7 @@ class MultiViewStereoNode(DepthNode):
             if camera is None:
                 return
             views.append((grey, camera, info))
-        header = msgs[0].header
+        header = msgs[2 * self.reference if self.cameras else 0].header
         stamp = int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
         self._waiting.append(_Waiting(stamp, copy.deepcopy(header), views))
         self._resolve()
