@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import pytest
 from helpers import Lazy
+from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from ros_helpers import header
@@ -169,6 +170,14 @@ def _tof(stamp: int) -> Image:
     return _image(planes.reshape(-1, planes.shape[-1]), '16UC1', stamp)
 
 
+def _odometry(stamp: int) -> Odometry:
+    """A camera moving sideways at 0.5 m/s (5 cm between two frames 0.1 s apart)."""
+    msg = Odometry(header=header(stamp, 'world'), child_frame_id='camera')
+    msg.pose.pose.position.x = 0.5 * stamp / 1e9
+    msg.pose.pose.orientation.w = 1.0
+    return msg
+
+
 @dataclass(frozen=True)
 class Kind:
     """An inputs kind of the registry: the valid messages of one frame by input topic
@@ -220,6 +229,10 @@ KINDS = {
     'tof_correlation': Kind(lambda t: {
         'correlation/image_raw': _tof(t),
         'camera_info': _info(TOF.camera, t)}, '/depth/image_rect'),
+    'posed_camera': Kind(lambda t: {
+        'image_rect': _image(FRAME.left_rect_gt, 'mono8', t),
+        'camera_info': _info(FRAME.left_camera, t),
+        'odom': _odometry(t)}, '/depth'),
 }
 
 #: Parameters a node runs with here (ranges that fit 64 x 48 images, its optional inputs
@@ -234,6 +247,9 @@ PARAMETERS = {
                          Parameter('sequence_timeout', value=0.0)],
     'register_depth': [Parameter('depth_in_rgb', value=[0.02, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])],
     'tof': [Parameter('threads', value=1)],
+    'multiview_stereo': [Parameter('planes', value=RANGE), Parameter('paths', value=5),
+                         Parameter('threads', value=1), Parameter('min_depth', value=0.5),
+                         Parameter('max_depth', value=10.0)],
 }
 
 

@@ -269,16 +269,18 @@ class MultiViewMatcher:
         label = result.disparity.copy()
         rho = planes.rho_of(label).astype(np.float32)
         rate, span = parallax(rho, inputs)
-        with np.errstate(invalid='ignore', divide='ignore'):
-            bad = ~(span >= p.min_parallax_px) | ~(rate > 0) | ~(rho > 0)
+        with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+            sigma_rho = np.float32(p.match_sigma_px) / rate
+            # no depth: too little parallax over the sweep, or a standard deviation as
+            # wide as the sweep itself
+            bad = ~(span >= p.min_parallax_px) | ~(rho > 0) | \
+                ~(sigma_rho < float(inputs.rho[-1] - inputs.rho[0]))
             rho[bad] = np.nan
             label[bad] = np.nan
-            sigma_rho = np.float32(p.match_sigma_px) / rate
-            rho_var = np.where(np.isfinite(rho), sigma_rho * sigma_rho, np.nan).astype(
-                np.float32)
+            rho_var = np.where(bad, np.nan, sigma_rho * sigma_rho).astype(np.float32)
             depth = (1.0 / rho).astype(np.float32)
-            sigma = (sigma_rho / (rho * rho)).astype(np.float32)
-            confidence = np.where(np.isfinite(rho), np.clip(1.0 - result.cost_ratio, 0, 1),
-                                  0.0).astype(np.float32)
+            sigma = np.where(bad, np.nan, sigma_rho / (rho * rho)).astype(np.float32)
+            confidence = np.where(bad, 0.0, np.clip(1.0 - result.cost_ratio, 0, 1)).astype(
+                np.float32)
         return MvsResult(depth, rho, rho_var, sigma, confidence, label, inputs)
 

@@ -220,10 +220,13 @@ class MvsStream:
         return self._median_depth
 
     def sources_for(self, frame: Frame) -> list[_Keyframe]:
-        """The keyframes ``frame`` would be swept against, most recent first."""
+        """The keyframes ``frame`` would be swept against, most recent first (those of its
+        size: a camera that changed its resolution starts its keyframes over)."""
         least = self.stream.min_baseline * self._median_depth
+        shape = np.asarray(frame.image).shape
         chosen = [k for k in reversed(self.keyframes)
-                  if k.pose.distance_to(frame.pose) >= max(least, 1e-9)]
+                  if k.pose.distance_to(frame.pose) >= max(least, 1e-9) and
+                  k.image.shape == shape]
         return chosen[:self.stream.max_sources]
 
     def process(self, frame: Frame, rig: list[Frame] | None = None
@@ -289,15 +292,18 @@ class MvsStream:
         return depth
 
     def _later_sources(self, frame: Frame) -> list[SourceView]:
-        """The pending frames after ``frame`` far enough from it, the newest first."""
+        """The pending frames after ``frame`` (of its size) far enough from it, the newest
+        first."""
         least = max(self.stream.min_baseline * self._median_depth, 1e-9)
+        shape = np.asarray(frame.image).shape
         return [SourceView(np.asarray(f.image), f.camera, frame.pose.relative_to(f.pose))
-                for f, _ in reversed(self._pending) if f.pose.distance_to(frame.pose) >= least]
+                for f, _ in reversed(self._pending)
+                if f.pose.distance_to(frame.pose) >= least and np.asarray(f.image).shape == shape]
 
     def _check(self, frame: Frame, image: NDArray[Any], rig: list[Frame]) -> NoDepth | None:
-        if image.ndim != 2:
-            return NoDepth('size_mismatch', f'the image must be grey (H, W), got {image.shape}',
-                           frame)
+        if image.ndim != 2 or min(image.shape) < 2:
+            return NoDepth('size_mismatch', f'the image must be grey (H, W), at least 2 x 2, '
+                           f'got {image.shape}', frame)
         for view in (frame, *rig):
             shape = np.asarray(view.image).shape
             if shape != image.shape or (view.camera.height, view.camera.width) != shape:
