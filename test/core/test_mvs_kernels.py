@@ -232,12 +232,13 @@ def test_fuse_kernel_equals_reference(method: str) -> None:
 
 @pytest.mark.parametrize('method', ['kalman', 'gauss_uniform'])
 def test_filters_converge_on_the_truth_through_outliers(method: str) -> None:
-    """Fifteen measurements of rho = 0.5 with sigma 0.01 and 20 % uniform outliers: the
-    Kalman filter's median error falls below sigma / 2 and nearly every pixel converges;
-    the Gauss x uniform filter cannot leave a first measurement that was an outlier (its
-    known weakness, kept visible here), so only its median is checked."""
+    """Fifteen independent measurements (correlation 0) of rho = 0.5 with sigma 0.01 and
+    20 % uniform outliers: the Kalman filter's median error falls below sigma / 2 and
+    nearly every pixel converges; the Gauss x uniform filter cannot leave a first
+    measurement that was an outlier (its known weakness, kept visible here), so only its
+    median is checked."""
     rng = np.random.default_rng(0)
-    settings = FilterSettings(method=method, rho_range=1.0)
+    settings = FilterSettings(method=method, rho_range=1.0, correlation=0.0)
     state = FilterState.empty((60, 60))
     for _ in range(15):
         m = (0.5 + rng.normal(0, 0.01, state.shape)).astype(np.float32)
@@ -249,6 +250,17 @@ def test_filters_converge_on_the_truth_through_outliers(method: str) -> None:
     if method == 'kalman':
         assert np.mean(error < 0.01) > 0.97
         assert converged(state, settings).mean() > 0.97
+
+
+def test_correlated_measurements_settle_at_half_their_variance() -> None:
+    """With correlation 0.5 the estimate's variance after n equal measurements of variance
+    r tends to r / 2 (the fixed point of p' = (p + r / 2) r / (p + 3 r / 2)), not r / n."""
+    settings = FilterSettings(rho_range=1.0, correlation=0.5)
+    state = FilterState.empty((4, 4))
+    for _ in range(30):
+        fuse(state, np.full((4, 4), 0.5, np.float32), np.full((4, 4), 1e-4, np.float32),
+             settings)
+    np.testing.assert_allclose(state.var, 0.5e-4, rtol=1e-3)
 
 
 def test_warp_kernel_equals_reference() -> None:

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import prange
 from numpy.typing import NDArray
 
 from depth_nodes.core.depth_image import Intrinsics
@@ -204,7 +205,7 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
 _UNSEEN = 1 << 20
 
 
-@no_nrt_kernel()
+@no_nrt_kernel(parallel=True)
 def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any],
                 src_grey: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector: F64,
                 rho: F32, y0: int, census_weight: int, intensity_weight: int,
@@ -216,7 +217,12 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
     the labels (vectorised) finds each label's source pixel, its bilinear fractions and
     whether it is inside; a second one reads the source there; a third merges the view's
     costs into the ``best_k`` smallest so far of each label (``best``, sorted, a
-    compare-exchange per rank: branch-free over the labels)."""
+    compare-exchange per rank: branch-free over the labels).
+
+    One thread (the matcher runs several bands at once), compiled ``parallel=True``
+    around a ``prange`` of one iteration, as the stereo matcher's band kernels
+    (``aggregate.py``, ONE_THREAD_GUFUNC): 7.8 against 12.1 ns a view-plane cost here.
+    """
     rows, w, n = out.shape
     views = src_grey.shape[0]
     h = ref_grey.shape[0] // w
@@ -229,85 +235,90 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
     ulast = np.float32(w - 1) - np.float32(1e-3)
     vlast = np.float32(h - 1) - np.float32(1e-3)
     cap = np.float32(truncation)
-    for yy in range(rows):
-        y = y0 + yy
-        for x in range(w):
-            cell = out[yy, x]
-            rx = k_inv[0, 0] * x + k_inv[0, 1] * y + k_inv[0, 2]
-            ry = k_inv[1, 0] * x + k_inv[1, 1] * y + k_inv[1, 2]
-            rz = k_inv[2, 0] * x + k_inv[2, 1] * y + k_inv[2, 2]
-            s = normal[0] * rx + normal[1] * ry + normal[2] * rz
-            if not s > 1e-12:  # the planes never cross this pixel's ray in front
-                for k in range(n):
-                    cell[k] = np.uint8(unseen_cost)
-                continue
-            at = y * w + x
-            cr = ref_census[at]
-            ir = ref_grey[at]
-            for i in range(best_k):
-                for k in range(n):
-                    best[i, k] = _UNSEEN
-            for k in range(n):
-                seen[k] = 0
-            for j in range(views):
-                a0 = np.float32(a_matrix[j, 0, 0] * x + a_matrix[j, 0, 1] * y + a_matrix[j, 0, 2])
-                a1 = np.float32(a_matrix[j, 1, 0] * x + a_matrix[j, 1, 1] * y + a_matrix[j, 1, 2])
-                a2 = np.float32(a_matrix[j, 2, 0] * x + a_matrix[j, 2, 1] * y + a_matrix[j, 2, 2])
-                b0 = np.float32(b_vector[j, 0] * s)
-                b1 = np.float32(b_vector[j, 1] * s)
-                b2 = np.float32(b_vector[j, 2] * s)
-                for k in range(n):  # vectorises
-                    r = rho[k]
-                    wz = a2 + r * b2
-                    inv = one / wz
-                    u = (a0 + r * b0) * inv
-                    v = (a1 + r * b1) * inv
-                    inside[k] = (wz > zero) & (u >= zero) & (u <= umax) & (v >= zero) & \
-                        (v <= vmax)
-                    uc = min(max(u, zero), ulast)
-                    vc = min(max(v, zero), vlast)
-                    xi = np.int32(uc)
-                    yi = np.int32(vc)
-                    frac_u[k] = uc - np.float32(xi)
-                    frac_v[k] = vc - np.float32(yi)
-                    index[k] = yi * np.int32(w) + xi
-                census_j = src_census[j]
-                grey_j = src_grey[j]
-                for k in range(n):
-                    if not inside[k]:
-                        row[k] = _UNSEEN
-                        continue
-                    i0 = np.intp(index[k])
-                    fu = frac_u[k]
-                    fv = frac_v[k]
-                    value = np.int32(0)
-                    if census_weight:
-                        near = i0 + np.intp(fu >= half) + np.intp(w) * np.intp(fv >= half)
-                        value += np.int32(census_weight) * np.int32(popcount(cr ^ census_j[near]))
-                    if intensity_weight:
-                        p00 = grey_j[i0]
-                        p01 = grey_j[i0 + 1]
-                        p10 = grey_j[i0 + w]
-                        p11 = grey_j[i0 + w + 1]
-                        top = p00 + fu * (p01 - p00)
-                        bottom = p10 + fu * (p11 - p10)
-                        diff = min(abs(ir - (top + fv * (bottom - top))), cap)
-                        value += np.int32(np.float32(intensity_weight) * diff + half)
-                    row[k] = min(value, np.int32(TOP_COST))
-                for k in range(n):
-                    seen[k] += np.int32(row[k] < _UNSEEN)
-                for i in range(best_k):  # row carries the larger one on down the ranks
+    for _ in prange(1):  # one iteration: see aggregate.ONE_THREAD_GUFUNC
+        for yy in range(rows):
+            y = y0 + yy
+            for x in range(w):
+                cell = out[yy, x]
+                rx = k_inv[0, 0] * x + k_inv[0, 1] * y + k_inv[0, 2]
+                ry = k_inv[1, 0] * x + k_inv[1, 1] * y + k_inv[1, 2]
+                rz = k_inv[2, 0] * x + k_inv[2, 1] * y + k_inv[2, 2]
+                s = normal[0] * rx + normal[1] * ry + normal[2] * rz
+                if not s > 1e-12:  # the planes never cross this pixel's ray in front
                     for k in range(n):
-                        low = min(best[i, k], row[k])
-                        row[k] = max(best[i, k], row[k])
-                        best[i, k] = low
-            for k in range(n):
-                used = min(seen[k], best_k)
-                total = np.int32(0)
+                        cell[k] = np.uint8(unseen_cost)
+                    continue
+                at = y * w + x
+                cr = ref_census[at]
+                ir = ref_grey[at]
                 for i in range(best_k):
-                    total += best[i, k] if i < used else np.int32(0)
-                mean = (2 * total + used) // max(2 * used, 1)
-                cell[k] = np.uint8(mean if used > 0 else unseen_cost)
+                    for k in range(n):
+                        best[i, k] = _UNSEEN
+                for k in range(n):
+                    seen[k] = 0
+                for j in range(views):
+                    a0 = np.float32(a_matrix[j, 0, 0] * x + a_matrix[j, 0, 1] * y +
+                                     a_matrix[j, 0, 2])
+                    a1 = np.float32(a_matrix[j, 1, 0] * x + a_matrix[j, 1, 1] * y +
+                                     a_matrix[j, 1, 2])
+                    a2 = np.float32(a_matrix[j, 2, 0] * x + a_matrix[j, 2, 1] * y +
+                                     a_matrix[j, 2, 2])
+                    b0 = np.float32(b_vector[j, 0] * s)
+                    b1 = np.float32(b_vector[j, 1] * s)
+                    b2 = np.float32(b_vector[j, 2] * s)
+                    for k in range(n):  # vectorises
+                        r = rho[k]
+                        wz = a2 + r * b2
+                        inv = one / wz
+                        u = (a0 + r * b0) * inv
+                        v = (a1 + r * b1) * inv
+                        inside[k] = (wz > zero) & (u >= zero) & (u <= umax) & (v >= zero) & \
+                            (v <= vmax)
+                        uc = min(max(u, zero), ulast)
+                        vc = min(max(v, zero), vlast)
+                        xi = np.int32(uc)
+                        yi = np.int32(vc)
+                        frac_u[k] = uc - np.float32(xi)
+                        frac_v[k] = vc - np.float32(yi)
+                        index[k] = yi * np.int32(w) + xi
+                    census_j = src_census[j]
+                    grey_j = src_grey[j]
+                    for k in range(n):
+                        if not inside[k]:
+                            row[k] = _UNSEEN
+                            continue
+                        i0 = np.intp(index[k])
+                        fu = frac_u[k]
+                        fv = frac_v[k]
+                        value = np.int32(0)
+                        if census_weight:
+                            near = i0 + np.intp(fu >= half) + np.intp(w) * np.intp(fv >= half)
+                            bits = np.int32(popcount(cr ^ census_j[near]))
+                            value += np.int32(census_weight) * bits
+                        if intensity_weight:
+                            p00 = grey_j[i0]
+                            p01 = grey_j[i0 + 1]
+                            p10 = grey_j[i0 + w]
+                            p11 = grey_j[i0 + w + 1]
+                            top = p00 + fu * (p01 - p00)
+                            bottom = p10 + fu * (p11 - p10)
+                            diff = min(abs(ir - (top + fv * (bottom - top))), cap)
+                            value += np.int32(np.float32(intensity_weight) * diff + half)
+                        row[k] = min(value, np.int32(TOP_COST))
+                    for k in range(n):
+                        seen[k] += np.int32(row[k] < _UNSEEN)
+                    for i in range(best_k):  # row carries the larger one on down the ranks
+                        for k in range(n):
+                            low = min(best[i, k], row[k])
+                            row[k] = max(best[i, k], row[k])
+                            best[i, k] = low
+                for k in range(n):
+                    used = min(seen[k], best_k)
+                    total = np.int32(0)
+                    for i in range(best_k):
+                        total += best[i, k] if i < used else np.int32(0)
+                    mean = (2 * total + used) // max(2 * used, 1)
+                    cell[k] = np.uint8(mean if used > 0 else unseen_cost)
 
 
 def sweep_cost_volume(inputs: SweepCostInputs) -> U8:

@@ -70,8 +70,12 @@ class StreamParams:
     depth_filter: str = setting('kalman', 'kalman (inverse-depth Kalman filter with outlier '
                                 'gate), gauss_uniform (Vogiatzis-Hernandez / REMODE) or none '
                                 '(each frame alone)', choices=FILTER_CHOICES)
-    process_sigma: float = setting(0.005, 'Relative inverse-depth noise added when the '
+    process_sigma: float = setting(0.002, 'Relative inverse-depth noise added when the '
                                    'filter state moves to the next frame', low=0.0, high=0.5)
+    correlation: float = setting(0.5, 'Share of a new estimate\'s variance added to the '
+                                 'filter\'s before they are fused (successive frames share '
+                                 'keyframes: their errors are not independent)', low=0.0,
+                                 high=10.0)
     converge_sigma: float = setting(0.02, 'Largest relative depth standard deviation of a '
                                     'converged pixel', low=1e-4, high=1.0)
     dither: bool = setting(True, 'Shift the planes by a different fraction of a step in '
@@ -92,6 +96,7 @@ class StreamParams:
         """The filter's settings (``rho_range``: the sweep's inverse-depth span)."""
         method = 'kalman' if self.depth_filter == 'none' else self.depth_filter
         return FilterSettings(method=method, process_sigma=self.process_sigma,
+                              correlation=self.correlation,
                               converge_sigma=self.converge_sigma, rho_range=rho_range)
 
 
@@ -206,6 +211,10 @@ class MvsStream:
         self.matcher.set_params(params)
         if self.keyframes.maxlen != stream.max_keyframes:
             self.keyframes = deque(self.keyframes, maxlen=stream.max_keyframes)
+
+    def reset_filter(self) -> None:
+        """Forget the filter's state (the keyframes stay)."""
+        self._previous = None
 
     def reset(self) -> None:
         """Forget the keyframes, the frames waiting and the filter (a time jump, a new
