@@ -145,6 +145,7 @@ def _inputs(normal: tuple[float, float, float] = (0.0, 0.0, 1.0), **kwargs: obje
     {'census_window': (7, 9), 'truncation': 12, 'unseen_cost': 200},
     {'normal': (0.0, 1.0, 0.2)},  # a tilted sweep: pixels above its horizon see no plane
     {'match_brightness': False},
+    {'cost': 'zncc'}, {'cost': 'zncc', 'best_k': 3},
 ])
 def test_sweep_cost_kernel_equals_reference(kwargs: dict[str, object]) -> None:
     inputs = _inputs(**kwargs)  # type: ignore[arg-type]
@@ -169,6 +170,7 @@ def test_a_label_no_source_sees_gets_the_unseen_cost() -> None:
     ({'sources': [np.zeros((10, 10), np.uint8)]}, 'every source'),
     ({'best_k': 4}, 'best_k'),
     ({'unseen_cost': 255}, 'unseen_cost'),
+    ({'cost': 'ncc'}, "cost 'ncc' is not one of census_intensity, zncc"),
 ])
 def test_sweep_inputs_refuse_what_does_not_fit(change: dict[str, object],
                                                 message: str) -> None:

@@ -25,11 +25,11 @@ aggregation and selection kernels run on this volume unchanged.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numba import prange
+from numba import njit, prange
 from numpy.typing import NDArray
 
 from depth_nodes.core.depth_image import Intrinsics
@@ -45,6 +45,8 @@ __all__ = ['MAX_SOURCES', 'SweepCostInputs', 'camera_matrix', 'sweep_cost_inputs
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
+#: The matching costs: the stereo matcher's (census and intensity), or ZNCC.
+COSTS = ('census_intensity', 'zncc')
 #: Most source views one sweep combines (the kernel's per-pixel scratch is sized by it).
 MAX_SOURCES = 16
 #: The largest cost of a seen label (255 is left for the stereo matcher's out-of-range).
@@ -84,6 +86,9 @@ class SweepCostInputs:
         unseen_cost: Cost of a label no source view sees.
         height: H.
         width: W.
+        zncc: The cost is ZNCC's (a 3 x 3 window), not census and intensity.
+        ref_window: ZNCC: (H * W, 10) float32: per reference pixel its 3 x 3 values less
+            their mean, over their spread, and (index 9) the spread.
     """
 
     ref_census: NDArray[Any]
@@ -103,6 +108,8 @@ class SweepCostInputs:
 
     height: int
     width: int
+    zncc: bool = False
+    ref_window: F32 = field(default_factory=lambda: np.zeros((0, 10), np.float32))
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -118,7 +125,7 @@ class SweepCostInputs:
                     self.unseen_cost, np.empty((self.best_k, n), np.int32),
                     np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32),
                     np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.bool_),
-                    out)
+                    self.zncc, self.ref_window, out)
         return out
 
 
@@ -128,8 +135,8 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
                       census_weight: int = 1, intensity_weight: int = 1,
                       truncation: int = 30, best_k: int = 2, unseen_cost: int = 64,
                       match_brightness: bool = True,
-                      source_census: list[NDArray[Any] | None] | None = None
-                      ) -> SweepCostInputs:
+                      source_census: list[NDArray[Any] | None] | None = None,
+                      cost: str = 'census_intensity') -> SweepCostInputs:
     """Prepare the sweep of ``reference`` over ``sources``.
 
     Args:
@@ -150,6 +157,8 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
             exposure change between frames).
         source_census: Census images of the sources already computed (a keyframe's is
             reused by every reference it serves), None where not.
+        cost: ``census_intensity`` (the stereo matcher's: census and truncated intensity
+            difference, by their weights) or ``zncc`` (a 3 x 3 window's ZNCC).
 
     Raises:
         ArgumentError: Sizes or counts that do not fit, or settings out of range.
@@ -171,6 +180,8 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
     if not 0 <= unseen_cost <= TOP_COST:
         raise ArgumentError(f'unseen_cost must be in 0..{TOP_COST}, got {unseen_cost}')
     planes.validate()
+    if cost not in COSTS:
+        raise ArgumentError(f'cost {cost!r} is not one of {", ".join(COSTS)}')
     dtype = census_dtype(census_window)
     ref_census = census_transform(ref, census_window, np.empty(ref.shape, dtype))
     src_census = np.empty((len(sources), *ref.shape), dtype)
@@ -193,16 +204,46 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
         a_matrix[j] = k_src @ np.asarray(rotation, np.float64) @ k_inv
         b_vector[j] = k_src @ np.asarray(translation, np.float64)
     h, w = ref.shape
+    window = reference_windows(ref_grey) if cost == 'zncc' else np.zeros((0, 10), np.float32)
     return SweepCostInputs(ref_census.reshape(-1), ref_grey.reshape(-1),
                            src_census.reshape(len(sources), -1),
                            src_grey.reshape(len(sources), -1), k_inv, planes.unit_normal,
                            a_matrix, b_vector, planes.inverse_depths().astype(np.float32),
                            int(census_weight), int(intensity_weight), int(truncation),
-                           int(best_k), int(unseen_cost), h, w)
+                           int(best_k), int(unseen_cost), h, w, cost == 'zncc', window)
 
 
 #: Cost of a view that does not see a label, in the kernel's sorting (above any real one).
 _UNSEEN = 1 << 20
+
+
+@njit(cache=True, nogil=True, inline='always')
+def _zncc_cost(grey: F32, i0: int, w: int, fu: np.float32, fv: np.float32,
+               ref_window: F32, at: int) -> np.int32:
+    """``round(32 (1 - ZNCC))`` of the reference pixel ``at``'s window and the source's
+    3 x 3 window at base pixel ``i0`` with fractions ``(fu, fv)`` (see :func:`_sweep_rows`)."""
+    total = np.float32(0.0)
+    squares = np.float32(0.0)
+    cross = np.float32(0.0)
+    c = 0
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            b = i0 + dy * w + dx
+            top = grey[b] + fu * (grey[b + 1] - grey[b])
+            bottom = grey[b + w] + fu * (grey[b + w + 1] - grey[b + w])
+            value = top + fv * (bottom - top)
+            total += value
+            squares += value * value
+            cross += ref_window[at, c] * value
+            c += 1
+    mean = total / np.float32(9.0)
+    spread = squares / np.float32(9.0) - mean * mean
+    norm = ref_window[at, 9]
+    if not (spread > np.float32(1e-2) and norm > np.float32(0.0)):
+        return np.int32(32)  # a flat window: no preference
+    zncc = cross / (np.float32(9.0) * np.float32(np.sqrt(spread)))
+    return np.int32(np.float32(32.0) * (np.float32(1.0) - min(zncc, np.float32(1.0))) +
+                    np.float32(0.5))
 
 
 @no_nrt_kernel(parallel=True)
@@ -211,13 +252,19 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
                 rho: F32, y0: int, census_weight: int, intensity_weight: int,
                 truncation: int, best_k: int, unseen_cost: int, best: NDArray[np.int32],
                 row: NDArray[np.int32], seen: NDArray[np.int32], index: NDArray[np.int32],
-                frac_u: F32,
-                frac_v: F32, inside: NDArray[np.bool_], out: U8) -> None:
+                frac_u: F32, frac_v: F32, inside: NDArray[np.bool_], zncc: bool,
+                ref_window: F32, out: U8) -> None:
     """Rows of the volume. Images are flat (H * W); per pixel and view, a first loop over
     the labels (vectorised) finds each label's source pixel, its bilinear fractions and
     whether it is inside; a second one reads the source there; a third merges the view's
     costs into the ``best_k`` smallest so far of each label (``best``, sorted, a
     compare-exchange per rank: branch-free over the labels).
+
+    With ``zncc`` the cost of a view is ``round(32 (1 - ZNCC))`` of the 3 x 3 window
+    around the pixel (``ref_window``: its values less their mean, over their spread) and the
+    source's 3 x 3 window at the projection, sampled bilinearly with the same fractions
+    (a window translated, not warped: the fronto-parallel approximation of a small patch);
+    a flat window costs 32.
 
     One thread (the matcher runs several bands at once), compiled ``parallel=True``
     around a ``prange`` of one iteration, as the stereo matcher's band kernels
@@ -235,6 +282,10 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
     ulast = np.float32(w - 1) - np.float32(1e-3)
     vlast = np.float32(h - 1) - np.float32(1e-3)
     cap = np.float32(truncation)
+    # a ZNCC window reads one pixel before the base pixel and two after it
+    lo = one if zncc else zero
+    uhi = np.float32(w - 3) if zncc else umax
+    vhi = np.float32(h - 3) if zncc else vmax
     for _ in prange(1):  # one iteration: see aggregate.ONE_THREAD_GUFUNC
         for yy in range(rows):
             y = y0 + yy
@@ -272,8 +323,8 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
                         inv = one / wz
                         u = (a0 + r * b0) * inv
                         v = (a1 + r * b1) * inv
-                        inside[k] = (wz > zero) & (u >= zero) & (u <= umax) & (v >= zero) & \
-                            (v <= vmax)
+                        inside[k] = (wz > zero) & (u >= lo) & (u <= uhi) & (v >= lo) & \
+                            (v <= vhi)
                         uc = min(max(u, zero), ulast)
                         vc = min(max(v, zero), vlast)
                         xi = np.int32(uc)
@@ -291,11 +342,13 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
                         fu = frac_u[k]
                         fv = frac_v[k]
                         value = np.int32(0)
-                        if census_weight:
+                        if zncc:
+                            value = _zncc_cost(grey_j, i0, w, fu, fv, ref_window, at)
+                        elif census_weight:
                             near = i0 + np.intp(fu >= half) + np.intp(w) * np.intp(fv >= half)
                             bits = np.int32(popcount(cr ^ census_j[near]))
                             value += np.int32(census_weight) * bits
-                        if intensity_weight:
+                        if intensity_weight and not zncc:
                             p00 = grey_j[i0]
                             p01 = grey_j[i0 + 1]
                             p10 = grey_j[i0 + w]
@@ -319,6 +372,53 @@ def _sweep_rows(ref_census: NDArray[Any], ref_grey: F32, src_census: NDArray[Any
                         total += best[i, k] if i < used else np.int32(0)
                     mean = (2 * total + used) // max(2 * used, 1)
                     cell[k] = np.uint8(mean if used > 0 else unseen_cost)
+
+
+def _zncc_reference(grey: F32, i0: NDArray[np.int64], w: int, fu: F32, fv: F32,
+                    window: F32) -> NDArray[np.int64]:
+    """:func:`_zncc_cost` on whole images (float32, the same order of operations)."""
+    f32 = np.float32
+    total = np.zeros(i0.shape, f32)
+    squares = np.zeros(i0.shape, f32)
+    cross = np.zeros(i0.shape, f32)
+    c = 0
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            b = np.clip(i0 + dy * w + dx, 0, grey.size - w - 2)
+            top = grey[b] + fu * (grey[b + 1] - grey[b])
+            bottom = grey[b + w] + fu * (grey[b + w + 1] - grey[b + w])
+            value = (top + fv * (bottom - top)).astype(f32)
+            total = total + value
+            squares = squares + value * value
+            cross = cross + window[..., c] * value
+            c += 1
+    mean = total / f32(9.0)
+    spread = squares / f32(9.0) - mean * mean
+    with np.errstate(invalid='ignore', divide='ignore'):
+        zncc = cross / (f32(9.0) * np.sqrt(spread).astype(f32))
+        cost = (f32(32.0) * (f32(1.0) - np.minimum(zncc, f32(1.0))) + f32(0.5)).astype(np.int64)
+    flat = ~((spread > f32(1e-2)) & (window[..., 9] > 0))
+    out: NDArray[np.int64] = np.where(flat, 32, cost)
+    return out
+
+
+def reference_windows(grey: F32) -> F32:
+    """(H * W, 10): each pixel's 3 x 3 window (edges replicated) less its mean, over its
+    spread (so that the sum of its products with a window is 9 cov / spread), and the
+    spread (index 9; 0 for a flat window, whose first nine are then 0)."""
+    h, w = grey.shape
+    padded = np.pad(grey.astype(np.float32), 1, mode='edge')
+    stack = np.stack([padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                      for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=-1)
+    mean = stack.mean(axis=-1, keepdims=True, dtype=np.float32)
+    centred = stack - mean
+    spread = np.sqrt((centred * centred).mean(axis=-1, dtype=np.float32)).astype(np.float32)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        scaled = np.where(spread[..., None] > 1e-3, centred / spread[..., None], 0.0)
+    out = np.concatenate([scaled.astype(np.float32), np.where(spread > 1e-3, spread, 0.0)[
+        ..., None].astype(np.float32)], axis=-1)
+    result: F32 = np.ascontiguousarray(out.reshape(h * w, 10))
+    return result
 
 
 def sweep_cost_volume(inputs: SweepCostInputs) -> U8:
@@ -356,16 +456,21 @@ def sweep_cost_reference(inputs: SweepCostInputs) -> U8:
                 inv = f32(1.0) / wz
                 u = (a[0] + r * b[0]) * inv
                 v = (a[1] + r * b[1]) * inv
-            ok = (s > 1e-12) & (wz > 0) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+            low, high = (1, 3) if inputs.zncc else (0, 1)
+            ok = (s > 1e-12) & (wz > 0) & (u >= low) & (u <= w - high) & \
+                (v >= low) & (v <= h - high)
             uc = np.minimum(np.maximum(np.where(ok, u, 0), f32(0)), f32(w - 1) - f32(1e-3))
             vc = np.minimum(np.maximum(np.where(ok, v, 0), f32(0)), f32(h - 1) - f32(1e-3))
             xi, yi = uc.astype(np.int32), vc.astype(np.int32)
             fu, fv = (uc - xi.astype(f32)).astype(f32), (vc - yi.astype(f32)).astype(f32)
             value = np.zeros((h, w), np.int64)
-            if inputs.census_weight:
+            if inputs.zncc:
+                value = _zncc_reference(grey, yi.astype(np.int64) * w + xi, w, fu, fv,
+                                        inputs.ref_window.reshape(h, w, 10))
+            elif inputs.census_weight:
                 near = census[yi + (fv >= 0.5), xi + (fu >= 0.5)]
                 value += inputs.census_weight * hamming(ref_census ^ near)
-            if inputs.intensity_weight:
+            if inputs.intensity_weight and not inputs.zncc:
                 i0 = yi.astype(np.int64) * w + xi
                 p00, p01, p10, p11 = grey[i0], grey[i0 + 1], grey[i0 + w], grey[i0 + w + 1]
                 top = p00 + fu * (p01 - p00)

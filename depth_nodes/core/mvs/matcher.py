@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from depth_nodes.core.depth_image import Intrinsics
 from depth_nodes.core.mvs.cost import (
+    COSTS,
     MAX_SOURCES,
     TOP_COST,
     SweepCostInputs,
@@ -62,6 +63,10 @@ class MvsParams:
     best_views: int = setting(2, 'Source views averaged per plane, the best ones (Kang et '
                               'al. 2001: occlusion-robust); capped by the views that see '
                               'the point', low=1, high=MAX_SOURCES)
+    matching_cost: str = setting('census_intensity', 'census_intensity: the stereo '
+                                 "matcher's cost (census Hamming and truncated intensity "
+                                 'difference, by their weights); zncc: a 3 x 3 window\'s '
+                                 'ZNCC (slower)', choices=COSTS)
     census_width: int = setting(5, 'census window width (odd)', low=3, high=9, odd=True)
     census_height: int = setting(5, 'census window height (odd; width x height - 1 <= 63)',
                                  low=3, high=9, odd=True)
@@ -276,7 +281,7 @@ class MultiViewMatcher:
             census_window=(p.census_height, p.census_width), census_weight=p.census_weight,
             intensity_weight=p.intensity_weight, truncation=p.intensity_truncation,
             best_k=min(p.best_views, len(sources)), unseen_cost=p.unseen_cost,
-            source_census=[s.census for s in sources])
+            source_census=[s.census for s in sources], cost=p.matching_cost)
         result = self._sgm.match_costs(inputs, ref)
         label = result.disparity.copy()
         rho = planes.rho_of(label).astype(np.float32)
