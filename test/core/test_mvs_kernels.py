@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import kernel_size
 
 from depth_nodes.core.depth_image import Intrinsics
 from depth_nodes.core.mvs.consistency import consistency, consistency_reference
@@ -30,6 +31,7 @@ from depth_nodes.core.mvs.fusion import (
     warp_state_reference,
 )
 from depth_nodes.core.mvs.geometry import Pose, SweepPlanes, quaternion_of
+from depth_nodes.core.mvs.matcher import parallax, parallax_reference
 from depth_nodes.core.transforms import quaternion_from_rpy, rotation_matrix
 from depth_nodes.errors import ArgumentError
 from depth_nodes.sim.scene import Material, Rect, Scene
@@ -42,8 +44,8 @@ from depth_nodes.sim.sequence import (
 )
 from depth_nodes.sim.texture import Texture
 
-SMALL = SequenceConfig(motion='sideways', width=48, height=36, n_frames=4, step_m=0.05,
-                       supersample=1)
+SMALL = SequenceConfig(motion='sideways', width=kernel_size(48, 24),
+                       height=kernel_size(36, 18), n_frames=4, step_m=0.05, supersample=1)
 
 
 @functools.cache
@@ -140,6 +142,7 @@ def _inputs(normal: tuple[float, float, float] = (0.0, 0.0, 1.0), **kwargs: obje
                              **kwargs)  # type: ignore[arg-type]
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('kwargs', [
     {}, {'best_k': 1}, {'best_k': 3}, {'census_weight': 0}, {'intensity_weight': 0},
     {'census_window': (7, 9), 'truncation': 12, 'unseen_cost': 200},
@@ -206,6 +209,21 @@ def test_the_true_plane_has_the_lowest_cost_on_a_textured_plane() -> None:
     assert np.mean(np.abs(winner - truth) <= 1) >= 0.85
 
 
+@pytest.mark.kernels
+def test_parallax_kernel_equals_reference() -> None:
+    inputs = _inputs()
+    rng = np.random.default_rng(4)
+    h, w, _ = inputs.shape  # type: ignore[attr-defined]
+    rho = rng.uniform(0.1, 1.2, (h, w)).astype(np.float32)
+    rho[rng.random((h, w)) < 0.1] = np.nan
+    got = parallax(rho, inputs)  # type: ignore[arg-type]
+    want = parallax_reference(rho, inputs)  # type: ignore[arg-type]
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    # a sideways source: the projection moves (a growing share of) the pixels' width
+    assert float(np.median(want[1])) > 1.0
+
+
 # ------------------------------------------------------------------ filters
 def _random_state(rng: np.random.Generator, shape: tuple[int, int]) -> FilterState:
     rho = rng.uniform(0.2, 1.0, shape).astype(np.float32)
@@ -215,10 +233,11 @@ def _random_state(rng: np.random.Generator, shape: tuple[int, int]) -> FilterSta
                        rng.integers(0, 10, shape).astype(np.float32))
 
 
+@pytest.mark.kernels
 @pytest.mark.parametrize('method', ['kalman', 'gauss_uniform'])
 def test_fuse_kernel_equals_reference(method: str) -> None:
     rng = np.random.default_rng(5)
-    state = _random_state(rng, (20, 30))
+    state = _random_state(rng, (kernel_size(20, 8), kernel_size(30, 10)))
     measured = (state.rho + rng.normal(0, 0.02, state.shape)).astype(np.float32)
     measured[rng.random(state.shape) < 0.3] = rng.uniform(0.1, 1.1)
     measured[rng.random(state.shape) < 0.1] = np.nan
@@ -265,10 +284,11 @@ def test_correlated_measurements_settle_at_half_their_variance() -> None:
     np.testing.assert_allclose(state.var, 0.5e-4, rtol=1e-3)
 
 
+@pytest.mark.kernels
 def test_warp_kernel_equals_reference() -> None:
     rng = np.random.default_rng(2)
     state = _random_state(rng, (24, 32))
-    camera = Intrinsics(30.0, 30.0, 15.5, 11.5, 32, 24)
+    camera = Intrinsics(30.0, 30.0, 15.5, 11.5, 32, 24)  # small enough without the JIT
     rotation = rotation_matrix(quaternion_from_rpy(0.02, -0.05, 0.01))
     relative = (rotation, np.array([0.05, -0.02, 0.1]))
     got = warp_state(state, _k(camera), _k(camera), relative, (24, 32), process_sigma=0.01)
@@ -296,6 +316,7 @@ def test_a_moved_plane_keeps_its_depth_and_its_variance_scales() -> None:
     np.testing.assert_allclose(moved.var[seen], 1e-4 * gain ** 2, rtol=1e-5)
 
 
+@pytest.mark.kernels
 # ------------------------------------------------------------------ consistency
 def test_consistency_kernel_equals_reference_and_the_truth_agrees() -> None:
     views = _views()
@@ -310,7 +331,7 @@ def test_consistency_kernel_equals_reference_and_the_truth_agrees() -> None:
     # the true depths agree wherever the other view sees the same surface (occlusion
     # edges, and the round trip's nearest pixel on the steep ground of a 48 x 36 view,
     # account for the rest)
-    assert agreed.sum() / checked.sum() > 0.9
+    assert agreed.sum() / checked.sum() > kernel_size(0.9, 0.8)  # 24 x 18 without the JIT
     wrong = ref.depth * 1.3
     _, agreed_wrong = consistency(wrong, k, others, max_px=1.0, max_relative=0.03)
     assert agreed_wrong.sum() < 0.05 * checked.sum()

@@ -228,6 +228,37 @@ def _parallax_kernel(rho: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector:
             span[y, x] = widest
 
 
+def parallax_reference(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32]:
+    """Plain numpy version of :func:`parallax`."""
+    h, w = rho.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    rays = [inputs.k_inv[i, 0] * xs + inputs.k_inv[i, 1] * ys + inputs.k_inv[i, 2]
+            for i in range(3)]
+    s = sum(inputs.normal[i] * rays[i] for i in range(3))
+    lo, hi = float(inputs.rho[0]), float(inputs.rho[-1])
+    r = rho.astype(np.float64)
+    rate = np.zeros((h, w))
+    span = np.zeros((h, w))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        for j in range(inputs.a_matrix.shape[0]):
+            m = inputs.a_matrix[j]
+            a = [m[i, 0] * xs + m[i, 1] * ys + m[i, 2] for i in range(3)]
+            b = [inputs.b_vector[j, i] * s for i in range(3)]
+            w_lo, w_hi = a[2] + lo * b[2], a[2] + hi * b[2]
+            ends = (w_lo > 1e-9) & (w_hi > 1e-9)
+            du = (a[0] + hi * b[0]) / w_hi - (a[0] + lo * b[0]) / w_lo
+            dv = (a[1] + hi * b[1]) / w_hi - (a[1] + lo * b[1]) / w_lo
+            span = np.maximum(span, np.where(ends, np.sqrt(du * du + dv * dv), 0.0))
+            wz = a[2] + r * b[2]
+            u, v = (a[0] + r * b[0]) / wz, (a[1] + r * b[1]) / wz
+            seen = (r > 0) & np.isfinite(r) & (wz > 1e-9) & (u >= 0) & (u <= w - 1) & \
+                (v >= 0) & (v <= h - 1)
+            du = (b[0] * a[2] - a[0] * b[2]) / (wz * wz)
+            dv = (b[1] * a[2] - a[1] * b[2]) / (wz * wz)
+            rate = np.maximum(rate, np.where(seen, np.sqrt(du * du + dv * dv), 0.0))
+    return rate.astype(np.float32), span.astype(np.float32)
+
+
 def parallax(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32]:
     """``(rate, span)`` of :func:`_parallax_kernel` for a sweep's inputs."""
     h, w = rho.shape
