@@ -54,13 +54,15 @@ COMPRESSION_LEVEL = 19
 WORLD = 'world'
 STEREO = '/stereo'
 
-#: The bundled bags (small: 320 x 240) and the larger ones the accuracy figures use.
+#: The presets (320 x 240; `generate --size` makes them larger).
 PRESETS: dict[str, SequenceConfig] = {
     'mvs_sideways': SequenceConfig(motion='sideways', n_frames=16),
     'mvs_forward': SequenceConfig(motion='forward', n_frames=16, step_m=0.05),
     'mvs_orbit': SequenceConfig(motion='orbit', n_frames=16, orbit_deg=1.0),
     'mvs_rig': SequenceConfig(motion='rig', n_frames=6, rig_cameras=3),
 }
+#: Those committed in bags/.
+BUNDLED = ('mvs_sideways', 'mvs_rig')
 
 
 def namespace(config: SequenceConfig) -> str:

@@ -40,6 +40,8 @@ class PresetKind(Generic[C]):
     #: The kind's own options (``--size``, ``--pose-noise``: the multi-view presets'),
     #: applied to a config; None: the kind has none.
     with_options: Callable[[C, argparse.Namespace], C] | None = None
+    #: The presets committed in bags/ (``--preset all``, `make bags`); None: every one.
+    bundled: tuple[str, ...] | None = None
 
     def generate(self, name: str, path: Path, args: argparse.Namespace) -> str:
         """Write preset ``name`` at ``path`` with the options applied; the printed line.
@@ -131,10 +133,14 @@ MULTIVIEW = PresetKind[SequenceConfig](
                         (f' of {c.rig_cameras} cameras' if c.motion == 'rig' else '') +
                         (f', pose noise {c.pose_noise_deg:g} deg / {c.pose_noise_m:g} m'
                          if c.pose_noise_deg or c.pose_noise_m else '')),
-    with_options=_sequence_options)
-#: Every preset by name, in the order `--preset all` writes them.
+    with_options=_sequence_options,
+    bundled=mvs.BUNDLED)
+#: Every preset by name.
 KINDS: dict[str, PresetKind[Any]] = {
     name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF, MULTIVIEW) for name in kind.presets}
+#: The committed bags, in the order `--preset all` writes them.
+BUNDLED = [name for name, kind in KINDS.items()
+           if kind.bundled is None or name in kind.bundled]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -144,8 +150,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye, '
                         'structured_light_vga, tof_vga, mvs_sideways, mvs_forward, mvs_orbit, '
                         'mvs_rig (a moving camera, or a rig of three, with poses and exact '
-                        'depth), all (these nine), or bad_inputs (the hostile campaign, from '
-                        '--source)')
+                        'depth), all (the bundled seven: not mvs_forward, mvs_orbit), or '
+                        'bad_inputs (the hostile campaign, from --source)')
     parser.add_argument('--source', help='bad_inputs: stereo bag whose raw frames to use '
                         '(default: the bundled stereo_vga)')
     parser.add_argument('--seed', type=int, help='override the preset seed')
@@ -171,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         if args.preset != 'all' and args.preset not in KINDS:
             raise ConfigError(f'unknown preset {args.preset!r} (presets: {", ".join(KINDS)}, '
                               'bad_inputs, all)')
-        names = list(KINDS) if args.preset == 'all' else [args.preset]
+        names = BUNDLED if args.preset == 'all' else [args.preset]
         out = Path(args.out)
         for name in names:
             path = out / name if args.preset == 'all' else out
