@@ -273,6 +273,8 @@ class MultiViewStereoNode(DepthNode):
         if isinstance(result, NoDepth):
             self.drop(result.reason, result.detail)
             return
+        if header is None or info is None:  # a frame this node never gave the stream
+            raise RuntimeError(f'no header kept for the depth at {stamp}')
         values = self.params.values
         camera = result.frame.camera
         if self.pub_depth.wanted:

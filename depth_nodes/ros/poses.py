@@ -20,6 +20,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 
@@ -89,7 +90,7 @@ def mount_pose(values: Sequence[float]) -> Pose:
     if len(numbers) != 7 or not all(isinstance(v, (int, float)) and math.isfinite(v)
                                     for v in numbers):
         raise ArgumentError(f'a pose needs 7 finite numbers x y z qx qy qz qw, got {numbers}')
-    return Pose.from_quaternion(numbers[:3], numbers[3:])
+    return Pose.from_quaternion(np.array(numbers[:3]), np.array(numbers[3:]))
 
 
 def _pose_of(position: Any, orientation: Any) -> Pose:

@@ -16,11 +16,8 @@ from helpers import kernel_size
 
 from depth_nodes.core.depth_image import Intrinsics
 from depth_nodes.core.mvs.consistency import consistency, consistency_reference
-from depth_nodes.core.mvs.cost import (
-    sweep_cost_inputs,
-    sweep_cost_reference,
-    sweep_cost_volume,
-)
+from depth_nodes.core.mvs.cost import sweep_cost_inputs, sweep_cost_volume
+from depth_nodes.core.mvs.cost_reference import sweep_cost_reference
 from depth_nodes.core.mvs.fusion import (
     FilterSettings,
     FilterState,

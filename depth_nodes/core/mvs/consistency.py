@@ -86,11 +86,12 @@ def consistency(depth: F32, k_ref: F64, others: list[tuple[F32, F64, tuple[F64, 
     """
     checked = np.zeros(depth.shape, np.uint8)
     agreed = np.zeros(depth.shape, np.uint8)
-    k_inv = np.linalg.inv(k_ref)
+    k_inv = np.asarray(np.linalg.inv(k_ref), np.float64)
     for other, k_other, (rotation, translation) in others:
         _consistency_kernel(np.ascontiguousarray(depth, np.float32), k_inv,
                             np.ascontiguousarray(other, np.float32),
-                            np.asarray(k_other, np.float64), np.linalg.inv(k_other),
+                            np.asarray(k_other, np.float64),
+                            np.asarray(np.linalg.inv(k_other), np.float64),
                             np.asarray(k_ref, np.float64), np.asarray(rotation, np.float64),
                             np.asarray(translation, np.float64), float(max_px),
                             float(max_relative), checked, agreed)

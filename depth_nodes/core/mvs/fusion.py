@@ -203,7 +203,8 @@ def warp_state(state: FilterState, k_old: F64, k_new: F64, relative: tuple[F64, 
     """
     out = FilterState.empty(shape)
     rotation, translation = (np.asarray(v, np.float64) for v in relative)
-    _warp_kernel(state.rho, state.var, state.a, state.b, np.linalg.inv(k_old),
+    k_inv = np.asarray(np.linalg.inv(k_old), np.float64)
+    _warp_kernel(state.rho, state.var, state.a, state.b, k_inv,
                  np.asarray(k_new, np.float64), rotation, translation, float(process_sigma),
                  out.rho, out.var, out.a, out.b)
     return out

@@ -2,17 +2,20 @@
 and the geometric check, frame after frame (no ROS).
 
 Every frame (:meth:`MvsStream.process`) is a reference: it is swept against the most
-recent keyframes (up to ``max_sources``) that are at least ``min_baseline`` of the scene's
-median depth away from it, and against the views given with it (a rig's other cameras,
-same stamp). Its estimate is checked against the keyframes' depth maps (a pixel that some
-checked view contradicts and none confirms loses its depth), then fused with the filter's
-state moved into it from the previous frame. The frame becomes a keyframe when it is
-``keyframe_baseline`` of the median depth from the last keyframe, or turned by
-``keyframe_angle_deg``.
+recent keyframes that are at least ``min_baseline`` of the scene's median depth away from
+it, with ``delay`` also against the frames that came after it (sources from both sides,
+interleaved, ``max_sources`` at most), and against the views given with it (a rig's other
+cameras, same stamp). Its estimate is checked against the keyframes' depth maps (a pixel
+that some checked view contradicts and none confirms is not fused into an estimate the
+filter has, and its confidence is halved), then fused with the filter's state moved into
+it from the previous frame. The frame becomes a keyframe when it is ``keyframe_baseline``
+of the median depth from the last keyframe, or turned by ``keyframe_angle_deg``. The planes
+shift by a fraction of a step from frame to frame (``dither``), so the filter averages the
+sub-plane refinement's bias away.
 
 A frame gives no depth, with its reason (:class:`NoDepth`), when no keyframe is far enough
-yet (``no_baseline``), or when its image, camera or pose do not fit (``size_mismatch``,
-``bad_pose``); it may still become the first keyframe.
+yet (``no_baseline``: nothing is estimated from it; it may become the first keyframe), or
+when its image, camera or pose do not fit (``size_mismatch``, ``bad_pose``).
 """
 
 from __future__ import annotations
