@@ -26,6 +26,9 @@ ROS_WHEELS = [
     'ros-jazzy-stereo-msgs',
     'ros-jazzy-std-msgs',
     'ros-jazzy-diagnostic-msgs',
+    # poses for the multi-view node: odometry, PoseStamped
+    'ros-jazzy-nav-msgs',
+    'ros-jazzy-geometry-msgs',
 ]
 
 setup(

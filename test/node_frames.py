@@ -25,6 +25,7 @@ from helpers import Lazy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from ros_helpers import header
+from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
@@ -100,6 +101,14 @@ def pattern_step(stamp: int, step: int) -> dict[str, Any]:
             'pattern': header(stamp, f'{stamp // 10**9}:{step}/{PATTERNS.count}')}
 
 
+def odometry(stamp: int) -> Odometry:
+    """A camera moving sideways at 0.5 m/s (5 cm between two frames 0.1 s apart)."""
+    msg = Odometry(header=header(stamp, 'world'), child_frame_id='camera')
+    msg.pose.pose.position.x = 0.5 * stamp / 1e9
+    msg.pose.pose.orientation.w = 1.0
+    return msg
+
+
 @dataclass(frozen=True)
 class Kind:
     """An inputs kind of the registry: the valid messages of a frame.
@@ -158,6 +167,10 @@ KINDS = {
     'tof_correlation': Kind(lambda t, _: {
         'correlation/image_raw': correlation(t),
         'camera_info': info(TOF.camera, t)}, '/depth/image_rect'),
+    'posed_camera': Kind(lambda t, _: {
+        'image_rect': image(FRAME.left_rect_gt, 'mono8', t),
+        'camera_info': info(FRAME.left_camera, t),
+        'odom': odometry(t)}, '/depth'),
 }
 
 #: Parameters a node runs with here (ranges that fit 64 x 48 images, its optional inputs
@@ -173,6 +186,9 @@ PARAMETERS = {
                          Parameter('sequence_timeout', value=0.0)],
     'register_depth': [Parameter('depth_in_rgb', value=[0.02, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])],
     'tof': [Parameter('threads', value=1)],
+    'multiview_stereo': [Parameter('planes', value=RANGE), Parameter('paths', value=5),
+                         Parameter('threads', value=1), Parameter('min_depth', value=0.5),
+                         Parameter('max_depth', value=10.0)],
 }
 
 

@@ -38,6 +38,7 @@ INPUT_KINDS = {
     'depth_raw': 'a depth image (image_raw) alone',
     'depth_stereo': 'a left depth image + the right camera_info (the baseline)',
     'tof_correlation': 'a time-of-flight camera\'s raw correlation frame + camera_info',
+    'posed_camera': 'one camera\'s rectified image + camera_info, and its poses (odometry)',
 }
 
 
@@ -127,6 +128,9 @@ NODES = (
     NodeEntry('tof', 'depth_nodes.nodes.tof:ToFNode',
               'Time of flight: raw correlation frames -> depth, amplitude, confidence and '
               'points', 'tof_correlation', camera_reader=True),
+    NodeEntry('multiview_stereo', 'depth_nodes.nodes.multiview_stereo:MultiViewStereoNode',
+              'Multi-view stereo: a moving camera\'s posed images (or a rig\'s) -> depth, '
+              'sigma, confidence and points', 'posed_camera', camera_reader=True),
 )
 
 

@@ -15,7 +15,7 @@ compare it with.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numba import njit
@@ -237,6 +237,16 @@ def _cost_rows_16(census_l: NDArray[np.uint32], census_rm: NDArray[np.uint32],
                            rm_lo, rm_hi, left[y, x], lo_l[y, x], hi_l[y, x], right_m[y],
                            lo_rm[y], hi_rm[y], xm0, k_lo, k_hi, census_weight,
                            intensity_weight, use_bt, truncation, cell)
+
+
+class CostRows(Protocol):
+    """What the matcher's schedule needs of a frame's costs: any band of rows of the
+    (H, W, D) uint8 volume, on demand (one thread per call). :class:`CostInputs` is one;
+    the plane sweep's (``depth_nodes.core.mvs.cost``) is another."""
+
+    def rows(self, y0: int, out: U8) -> U8:
+        """Rows y0 .. y0 + len(out) - 1 of the cost volume, into ``out``."""
+        ...  # pragma: no cover (a protocol)
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from depth_nodes.core.sgm import ranged
 from depth_nodes.core.sgm.bands import Band, run_tasks
 from depth_nodes.core.sgm.check import check_disparity
 from depth_nodes.core.sgm.coarse import CoarseSearch
-from depth_nodes.core.sgm.cost import CostInputs, cost_inputs
+from depth_nodes.core.sgm.cost import CostInputs, CostRows, cost_inputs
 from depth_nodes.core.sgm.params import SgmParams
 from depth_nodes.core.sgm.schedule import FullFrame, RangedFrame
 from depth_nodes.core.sgm.workspace import (
@@ -152,6 +152,35 @@ class SgmMatcher:
         del frame, inputs  # the per-frame intensities, before the filters' temporaries
         return finish(ws.frame, p)
 
+    def match_costs(self, costs: CostRows, image: NDArray[Any]) -> SgmResult:
+        """SGM over labels whose costs another module provides (the plane sweep of
+        ``depth_nodes.core.mvs``), on ``numba.get_num_threads()`` threads.
+
+        ``costs.rows`` fills bands of the (H, W, disparity_range) uint8 volume; ``image``
+        (H, W) drives the adaptive P2. The labels are not a stereo pair's: there is no
+        border statistic (``border_cost`` must be 0) and no left-right or border check;
+        the median and the speckle filter apply as set. ``disparity`` holds the
+        fractional label plus ``min_disparity``, ``cost_ratio`` the winner's ambiguity
+        (``disparity_right`` is the selection's by-product, meaningless here).
+
+        Raises:
+            ArgumentError: ``image`` is not 2-D, or ``border_cost`` is not 0.
+        """
+        if image.ndim != 2:
+            raise ArgumentError(f'image {image.shape} must be a grey (H, W) image')
+        p = self.params
+        if p.border_cost > 0:
+            raise ArgumentError('match_costs needs border_cost 0 (its labels have no border)')
+        h, w = image.shape
+        threads = max(1, numba.get_num_threads())
+        ws = self.workspaces.for_full(p, h, w, threads)
+        self._kept_total = False
+        frame = FullFrame(p, ws, costs, np.ascontiguousarray(image, dtype=np.float32),
+                          self.workspaces.p2_table(p), self.workspaces.total, False, threads)
+        run_tasks(frame.tasks(), threads)
+        self.border_cost = 0
+        return finish(ws.frame, p, stereo=False)
+
     def match_windows(self, left: NDArray[Any], right: NDArray[Any], lo: I32,
                       wid: I32) -> SgmResult | None:
         """Match over given windows, as the coarse search's second pass does: pixel (y,
@@ -216,15 +245,17 @@ def _cost_inputs(left: NDArray[Any], right: NDArray[Any], p: SgmParams,
 
 
 # ------------------------------------------------------------------- post-filters
-def finish(buffers: FrameBuffers, params: SgmParams) -> SgmResult:
+def finish(buffers: FrameBuffers, params: SgmParams, *, stereo: bool = True) -> SgmResult:
     """The filters after the selection (either search), in place on ``buffers``' outputs:
     the 3x3 median (``median_filter``), the left-right and border rules
-    (``check.check_disparity``), the speckles (``speckle_size``)."""
+    (``check.check_disparity``; only for a stereo pair's labels, ``stereo``), the
+    speckles (``speckle_size``)."""
     p, b = params, buffers
     if p.median_filter:
         median3(b.disparity, p.min_disparity)
-    check_disparity(b.disparity, b.disparity_right, max_diff=p.disp12_max_diff,
-                    max_outside=p.border_extrapolation * p.disparity_range)
+    if stereo:
+        check_disparity(b.disparity, b.disparity_right, max_diff=p.disp12_max_diff,
+                        max_outside=p.border_extrapolation * p.disparity_range)
     if p.speckle_size > 0:
         speckles = remove_speckles(b.disparity, max_size=p.speckle_size,
                                    max_diff=p.speckle_range)

@@ -31,7 +31,7 @@ from depth_nodes.core.sgm.border import (
     mean_best_count,
     sampled_best_cost_sum,
 )
-from depth_nodes.core.sgm.cost import CostInputs
+from depth_nodes.core.sgm.cost import CostInputs, CostRows
 from depth_nodes.core.sgm.params import SgmParams
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, band_select
 from depth_nodes.core.sgm.workspace import FullWorkspace, RangedWorkspace
@@ -75,7 +75,7 @@ class FullFrame:
         threads: Threads the tasks will run on.
     """
 
-    def __init__(self, params: SgmParams, ws: FullWorkspace, inputs: CostInputs, image: F32,
+    def __init__(self, params: SgmParams, ws: FullWorkspace, inputs: CostRows, image: F32,
                  table: I64, total: NDArray[np.uint16], keep_total: bool,
                  threads: int) -> None:
         self.p = params
@@ -184,6 +184,8 @@ class FullFrame:
 
     def _sample(self, part: int, ys: range) -> Run:
         def run(worker: int) -> None:
+            # border_cost > 0 (the only case that samples) is a stereo pair's CostInputs
+            assert isinstance(self.inputs, CostInputs)
             self.samples[part] = sampled_best_cost_sum(self.inputs, ys,
                                                        self.ws.workers[worker].sample)
         return run

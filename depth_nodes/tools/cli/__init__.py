@@ -49,6 +49,8 @@ COMMANDS = (
             'another namespace)', 'convert'),
     Command('import-pair', 'a real image pair (and its ground truth) as a bag for process '
             'and eval', 'import_pair'),
+    Command('import-views', 'real images with known cameras (Middlebury, COLMAP) as a bag '
+            'for the multi-view node', 'import_views'),
     Command('pipeline', 'run every node of a graph in one process, live', 'pipeline'),
     Command('play', 'publish a bag into the live graph', 'play'),
     Command('record', 'record live topics into a bag', 'record'),

@@ -19,6 +19,7 @@ import numba
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.tools.bench.live import WATCH, bench_live
+from depth_nodes.tools.bench.multiview import bench_multiview
 from depth_nodes.tools.bench.nodes import bench_cross_check, bench_point_cloud
 from depth_nodes.tools.bench.rectify import bench_rectify
 from depth_nodes.tools.bench.sgm import bench_sgm
@@ -86,6 +87,26 @@ def _sgm_arguments(parser: argparse.ArgumentParser) -> None:
 def _sgm(args: argparse.Namespace) -> str:
     return bench_sgm(repeats=args.frames, disparities=args.disparities, paths=args.paths,
                      size=frame_size(args.size), busy=args.busy).format()
+
+
+def _multiview_arguments(parser: argparse.ArgumentParser) -> None:
+    _in_process_options(parser, frames=10)
+    parser.add_argument('--size', default='320x240', metavar='WxH',
+                        help='frame size of the simulated views (default 320x240)')
+    parser.add_argument('--planes', type=int, default=64, help='planes of the sweep, and '
+                        'disparities of the stereo matcher beside it (default 64)')
+    parser.add_argument('--sources', type=int, default=4, help='source views (default 4)')
+    parser.add_argument('--paths', type=int, choices=PATHS, default=5,
+                        help='aggregation paths, of both (default 5, as '
+                        'config/multiview_pipeline.yaml)')
+    parser.add_argument('--busy', type=int, default=0, metavar='N',
+                        help='also time with N busy-loop processes beside it (default 0)')
+
+
+def _multiview(args: argparse.Namespace) -> str:
+    return bench_multiview(size=frame_size(args.size), planes=args.planes,
+                           sources=args.sources, paths=args.paths, repeats=args.frames,
+                           busy=args.busy).format()
 
 
 def _node_arguments(parser: argparse.ArgumentParser) -> None:
@@ -167,6 +188,8 @@ STAGES = {stage.name: stage for stage in (
           _node_arguments, lambda args: bench_cross_check(repeats=args.frames).format()),
     Stage('point_cloud', 'the point-cloud node beside census SGM on the same pair',
           _node_arguments, lambda args: bench_point_cloud(repeats=args.frames).format()),
+    Stage('multiview', 'the multi-view plane sweep beside the stereo matcher on as many '
+          'pixels x labels', _multiview_arguments, _multiview),
     Stage('structured_light', 'decoding one sequence of a structured-light bag, beside '
           'OpenCV GrayCodePattern', _structured_light_arguments, _structured_light),
     Stage('tof', "the tof node and its decoding on a ToF bag's first frame",
@@ -227,11 +250,18 @@ def check_arguments(args: argparse.Namespace) -> None:
     if 'width' in given and (args.width < 16 or args.height < 16):
         raise ConfigError(f'--width and --height must be at least 16, got {args.width}x'
                           f'{args.height}')
-    if 'size' in given:
+    if 'disparities' in given:
         width = frame_size(args.size)[0]
         if not 1 <= args.disparities < width:
             raise ConfigError(f'--disparities must be in 1..{width - 1} (the pair is {width} '
                               f'px wide), got {args.disparities}')
+    if 'planes' in given:
+        width = frame_size(args.size)[0]
+        if not 2 <= args.planes < width:
+            raise ConfigError(f'--planes must be in 2..{width - 1} (the views are {width} px '
+                              f'wide), got {args.planes}')
+    if 'sources' in given and not 1 <= args.sources <= 16:
+        raise ConfigError(f'--sources must be in 1..16, got {args.sources}')
     if 'busy' in given and args.busy < 0:
         raise ConfigError(f'--busy must be >= 0, got {args.busy}')
     if 'rate' in given and not args.rate > 0:

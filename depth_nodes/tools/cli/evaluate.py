@@ -1,4 +1,5 @@
-"""`depth-nodes eval`: accuracy of a processed bag against its ground truth."""
+"""`depth-nodes eval`: accuracy of a processed bag against its ground truth (stereo, or
+multi-view depth; real multi-view images without depth truth: consistency across views)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,12 @@ from pathlib import Path
 
 from depth_nodes.errors import BagError, DepthNodesError
 from depth_nodes.tools.evaluation.evaluate import evaluate_bag, has_ground_truth
+from depth_nodes.tools.evaluation.multiview import (
+    evaluate_multiview_bag,
+    evaluate_views_bag,
+    is_multiview_bag,
+    is_views_bag,
+)
 from depth_nodes.tools.evaluation.previews import bag_previews
 
 
@@ -24,6 +31,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
     parser.add_argument('--grid', action='store_true',
                         help='also print every setting of the 18-setting OpenCV grid')
+    parser.add_argument('--skip', type=int, default=5, metavar='N',
+                        help='multi-view: summarise from the N-th frame with depth on, once '
+                        'the depth filter has had N frames (default 5)')
+    parser.add_argument('--object-threshold', type=float, default=20.0, metavar='GREY',
+                        help='imported views: pixels brighter than this are the object, '
+                        'for its coverage (default 20)')
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,6 +52,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    if args.skip < 0:
+        raise BagError(f'--skip must be >= 0, got {args.skip}')
+    if is_multiview_bag(args.bag):
+        print(evaluate_multiview_bag(args.bag, skip=args.skip).format())
+        return 0
+    if is_views_bag(args.bag):
+        print(evaluate_views_bag(args.bag, object_threshold=args.object_threshold).format())
+        return 0
     if not has_ground_truth(args.bag):
         if not args.previews:
             raise BagError(f'{args.bag} has no ground truth (…/left/disparity_gt) to score '

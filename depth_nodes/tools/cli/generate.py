@@ -14,8 +14,10 @@ from typing import Any, Generic, TypeVar
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.sim import StereoSimConfig
+from depth_nodes.sim.sequence import SequenceConfig
 from depth_nodes.sim.tof import ToFSimConfig
 from depth_nodes.tools import signals
+from depth_nodes.tools.bags import multiview as mvs
 from depth_nodes.tools.bags import structured_light as sl
 from depth_nodes.tools.bags import tof
 from depth_nodes.tools.bags.generate import PRESETS, write_stereo_bag
@@ -35,14 +37,28 @@ class PresetKind(Generic[C]):
     with_frames: Callable[[C, int], C]
     write: Callable[[Path, C, bool], int]
     describe: Callable[[C], str]
+    #: The kind's own options (``--size``, ``--pose-noise``: the multi-view presets'),
+    #: applied to a config; None: the kind has none.
+    with_options: Callable[[C, argparse.Namespace], C] | None = None
+    #: The presets committed in bags/ (``--preset all``, `make bags`); None: every one.
+    bundled: tuple[str, ...] | None = None
 
     def generate(self, name: str, path: Path, args: argparse.Namespace) -> str:
-        """Write preset ``name`` at ``path`` with the options applied; the printed line."""
+        """Write preset ``name`` at ``path`` with the options applied; the printed line.
+
+        Raises:
+            ConfigError: An option the preset's kind does not take.
+        """
         config = self.presets[name]
         if args.seed is not None:
             config = self.with_seed(config, args.seed)
         if args.frames is not None:
             config = self.with_frames(config, args.frames)
+        if self.with_options is not None:
+            config = self.with_options(config, args)
+        elif args.size is not None or args.pose_noise is not None:
+            raise ConfigError(f'--size and --pose-noise apply to the multi-view presets '
+                              f'(mvs_*), not to {name}')
         count = self.write(path, config, args.force)
         size = sum(f.stat().st_size for f in path.iterdir()) / 1e6
         return f'{path}: {name}, {self.describe(config)}, {count} messages, {size:.1f} MB'
@@ -82,9 +98,49 @@ TOF = PresetKind[ToFSimConfig](
     write=lambda path, c, overwrite: tof.write_tof_bag(path, c, overwrite=overwrite),
     describe=lambda c: (f'{c.width}x{c.height}, {_frames(c.n_frames)} of '
                         f'{len(c.frequencies_mhz)} x {c.phase_steps} correlation planes'))
-#: Every preset by name, in the order `--preset all` writes them.
+def _sequence_options(config: SequenceConfig, args: argparse.Namespace) -> SequenceConfig:
+    """``--size`` (the same motion in metres: the focal length, 0.8 x the width, scales
+    the parallax in pixels) and ``--pose-noise`` of a multi-view preset."""
+    if args.size is not None:
+        width, height = image_size(args.size)
+        config = dataclasses.replace(config, width=width, height=height)
+    if args.pose_noise is not None:
+        degrees, metres = args.pose_noise
+        config = dataclasses.replace(config, pose_noise_deg=degrees, pose_noise_m=metres)
+    return config
+
+
+def image_size(text: str) -> tuple[int, int]:
+    """``WxH`` as (W, H).
+
+    Raises:
+        ConfigError: Not two integers of at least 16 joined by x.
+    """
+    parts = text.lower().split('x')
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts) or \
+            min(int(p) for p in parts) < 16:
+        raise ConfigError(f'--size must be WxH with both at least 16 (e.g. 640x480), got '
+                          f'{text!r}')
+    return int(parts[0]), int(parts[1])
+
+
+MULTIVIEW = PresetKind[SequenceConfig](
+    mvs.PRESETS,
+    with_seed=lambda c, seed: dataclasses.replace(c, seed=seed),
+    with_frames=lambda c, frames: dataclasses.replace(c, n_frames=frames),
+    write=lambda path, c, overwrite: mvs.write_sequence_bag(path, c, overwrite=overwrite),
+    describe=lambda c: (f'{c.width}x{c.height}, {c.motion}, {_frames(c.n_frames)}' +
+                        (f' of {c.rig_cameras} cameras' if c.motion == 'rig' else '') +
+                        (f', pose noise {c.pose_noise_deg:g} deg / {c.pose_noise_m:g} m'
+                         if c.pose_noise_deg or c.pose_noise_m else '')),
+    with_options=_sequence_options,
+    bundled=mvs.BUNDLED)
+#: Every preset by name.
 KINDS: dict[str, PresetKind[Any]] = {
-    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF) for name in kind.presets}
+    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF, MULTIVIEW) for name in kind.presets}
+#: The committed bags, in the order `--preset all` writes them.
+BUNDLED = [name for name, kind in KINDS.items()
+           if kind.bundled is None or name in kind.bundled]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -92,12 +148,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('out', help='bag folder to create (a parent folder with --preset all)')
     parser.add_argument('--preset', default='stereo_vga',
                         help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye, '
-                        'structured_light_vga, tof_vga, all (these five), or bad_inputs (the '
-                        'hostile campaign, from --source)')
+                        'structured_light_vga, tof_vga, mvs_sideways, mvs_forward, mvs_orbit, '
+                        'mvs_rig (a moving camera, or a rig of three, with poses and exact '
+                        'depth), all (the bundled seven: not mvs_forward, mvs_orbit), or '
+                        'bad_inputs (the hostile campaign, from --source)')
     parser.add_argument('--source', help='bad_inputs: stereo bag whose raw frames to use '
                         '(default: the bundled stereo_vga)')
     parser.add_argument('--seed', type=int, help='override the preset seed')
     parser.add_argument('--frames', type=int, help='override the number of frames')
+    parser.add_argument('--size', metavar='WxH',
+                        help='mvs_*: the image size (default 320x240)')
+    parser.add_argument('--pose-noise', type=float, nargs=2, metavar=('DEG', 'M'),
+                        help='mvs_*: standard deviation of the poses the bag reports: '
+                        'rotation in degrees, position in metres per axis (the images stay '
+                        'exact)')
     parser.add_argument('--force', action='store_true', help='replace existing bags')
 
 
@@ -113,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         if args.preset != 'all' and args.preset not in KINDS:
             raise ConfigError(f'unknown preset {args.preset!r} (presets: {", ".join(KINDS)}, '
                               'bad_inputs, all)')
-        names = list(KINDS) if args.preset == 'all' else [args.preset]
+        names = BUNDLED if args.preset == 'all' else [args.preset]
         out = Path(args.out)
         for name in names:
             path = out / name if args.preset == 'all' else out
