@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 import rclpy
 from helpers import Lazy
+from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from ros_helpers import header
-from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
