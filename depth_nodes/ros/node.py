@@ -74,7 +74,8 @@ class DepthNode(Node):
         #: The offline harness's sink: installed, every output goes to it, not to DDS.
         self.sink: Sink | None = None
         self.accounting = Accounting(lambda: self.get_logger(), lambda: self.stopping)
-        self.input_set = InputSet(self, self.accounting, self.on_time_jump)
+        # late-bound: a hook set on the instance (a test counting the jumps) is called too
+        self.input_set = InputSet(self, self.accounting, lambda: self.on_time_jump())
         self.frame_reader = FrameReader(self)
         self.inputs: list[InputSpec] = self.input_set.specs
         self.outputs: dict[str, Output] = {}

@@ -17,7 +17,12 @@ verdict, per case:
   image or cloud), or at least one drop is counted by the end of the stream, under a
   stable snake_case reason;
 * the next valid frame's outputs are byte-identical to what the same frame gives in a
-  fresh node that never saw the hostile one.
+  fresh node that never saw the hostile one. For a node that ``keeps_state`` (its output
+  depends on the frames before, as the multi-view node's filter and keyframes do), a
+  hostile frame it accepted and answered legitimately changes that state: then the next
+  valid frame must still be answered; a stamp far off makes it start over (its
+  ``on_time_jump``), after which the next frame is a first one again (answered, or a
+  counted drop); a frame it dropped must leave no trace, byte for byte.
 
 The cases of a node run in one test and every failing case is reported with what went
 wrong. A registry node whose inputs kind has no frame builder fails: adding a node of a
@@ -39,6 +44,7 @@ from hostile_messages import stamp_variants, variants
 from node_frames import STEP_NS, Kind, is_empty, kind_of, make_node, participant_kept
 from rclpy.context import Context
 
+from depth_nodes.graph.description import resolve_plugin
 from depth_nodes.nodes.registry import NODES, NodeEntry
 from depth_nodes.tools.bags.io import serialize
 
@@ -93,6 +99,8 @@ class Outcome:
     hostile: list[tuple[str, Any]]
     after: list[tuple[str, Any]]
     drops: Counter[str]
+    #: Times the stamps jumped back and the node started over (its on_time_jump hook).
+    time_jumps: int = 0
 
 
 def _feed(node: Any, frame: Frame) -> list[tuple[str, Any]]:
@@ -107,12 +115,20 @@ def run(entry: NodeEntry, context: Context, frame: Frame | None) -> Outcome:
     """A fresh node fed a valid frame, ``frame`` (None: nothing), the next valid frame."""
     kind = kind_of(entry)
     node = make_node(entry, context)
+    jumps = [0]
+    hook = node.on_time_jump
+
+    def counted() -> None:
+        jumps[0] += 1
+        hook()
+
+    node.on_time_jump = counted
     try:
         _feed(node, kind.frame(BEFORE))
         hostile = _feed(node, frame) if frame is not None else []
         after = _feed(node, kind.frame(AFTER))
         node.finish_stream()
-        return Outcome(hostile, after, Counter(node.drops))
+        return Outcome(hostile, after, Counter(node.drops), jumps[0])
     finally:
         node.destroy_node()
 
@@ -122,7 +138,8 @@ def _outputs(out: list[tuple[str, Any]]) -> list[tuple[str, bytes]]:
     return [(topic, serialize(msg)) for topic, msg in out if _stamp_ns(msg) == AFTER]
 
 
-def verdict(kind: Kind, outcome: Outcome, expected: list[tuple[str, bytes]]) -> list[str]:
+def verdict(kind: Kind, outcome: Outcome, expected: list[tuple[str, bytes]], *,
+            keeps_state: bool = False) -> list[str]:
     """What is wrong with a case's outcome (nothing: an empty list)."""
     problems = []
     if outcome.drops.get('internal_error'):
@@ -135,7 +152,14 @@ def verdict(kind: Kind, outcome: Outcome, expected: list[tuple[str, bytes]]) -> 
     if bad := [r for r in outcome.drops if not REASON.fullmatch(r)]:
         problems.append(f'drop reasons {bad} are not short keys')
     got = _outputs(outcome.after)
-    if got != expected:
+    if keeps_state and answered:  # the state took the hostile frame in, as it should
+        if not any(t == kind.output for t, _ in got):
+            problems.append('the next valid frame gave no output')
+    elif keeps_state and outcome.time_jumps:  # a far stamp: the node started over, as a
+        # stateful node must when time jumps; the next frame is then a first one again
+        if not got and not outcome.drops:
+            problems.append('the next valid frame gave no output and no drop')
+    elif got != expected:
         problems.append(f'the next valid frame gave {[t for t, _ in got]}, not the fresh '
                         f'node\'s {[t for t, _ in expected]} byte for byte')
     return problems
@@ -160,8 +184,9 @@ def test_node_survives_every_hostile_input_and_counts_it(context: Context,
                 failures.append(f'{name}: raised {type(exc).__name__}: {exc}')
                 continue
             reasons.update(outcome.drops)
-            failures += [f'{name}: {problem}' for problem in verdict(kind, outcome,
-                                                                      expected)]
+            keeps_state = bool(getattr(resolve_plugin(entry.name), 'keeps_state', False))
+            failures += [f'{name}: {problem}' for problem in verdict(
+                kind, outcome, expected, keeps_state=keeps_state)]
     print(f'{entry.name}: {count} cases, drops by reason {dict(sorted(reasons.items()))}')
     assert count >= 50, (entry.name, count)  # the catalog reached the node
     assert not failures, f'{entry.name}: {len(failures)} of {count} cases failed:\n' + (
