@@ -12,11 +12,11 @@ from helpers import REPO
 #: ROS packages released for Jazzy, so rosdep resolves them by name. Checked in
 #: ros/rosdistro jazzy/distribution.yaml (repositories rclpy; rcl_interfaces, which
 #: releases rcl_interfaces and rosgraph_msgs; common_interfaces, which releases
-#: sensor_msgs, stereo_msgs, std_msgs, diagnostic_msgs and geometry_msgs; geometry2, which
+#: sensor_msgs, stereo_msgs, std_msgs, diagnostic_msgs, geometry_msgs and nav_msgs; geometry2, which
 #: releases tf2_msgs; ament_index; launch; launch_ros).
 JAZZY_ROS_PACKAGES = frozenset({
     'rclpy', 'rcl_interfaces', 'rosgraph_msgs', 'sensor_msgs', 'stereo_msgs', 'std_msgs',
-    'diagnostic_msgs', 'geometry_msgs', 'tf2_msgs', 'ament_index_python', 'launch',
+    'diagnostic_msgs', 'geometry_msgs', 'nav_msgs', 'tf2_msgs', 'ament_index_python', 'launch',
     'launch_ros',
 })
 
@@ -42,6 +42,7 @@ MODULE_KEYS = {
     'rosbags': 'python3-rosbags-pip',
     'backports': 'python3-rosbags-pip',
     'compression': 'python3-rosbags-pip',
+    'lz4': 'python3-rosbags-pip',  # a dependency of rosbags (its MCAP reader's LZ4 chunks)
     **{name: name for name in JAZZY_ROS_PACKAGES},
 }
 #: Imports of an optional feature, behind an ImportError that says what to install: not a
