@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import textwrap
 from collections.abc import Callable, Iterable, Sequence
@@ -155,4 +156,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_ERROR
     except KeyboardInterrupt:  # stopped by the user (SIGINT or SIGTERM): not a failure
         print(f'depth-nodes {name}: interrupted', file=sys.stderr)
+        return 0
+    except BrokenPipeError:  # `depth-nodes eval ... | head`: the reader has what it wanted
+        # the interpreter's final flush of stdout would fail again: point it at nothing
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
