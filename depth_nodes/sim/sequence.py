@@ -9,8 +9,9 @@ at the pixel centres in its own optical frame.
 
 Motions (:data:`MOTIONS`):
 
-* ``forward``: along the optical axis, ``step_m`` per frame (the epipole in the image:
-  the hard case of a drone or a car);
+* ``forward``: along the optical axis, ``step_m`` per frame, from :data:`FORWARD_START`
+  behind the stereo simulator's camera (the epipole in the image: the hard case of a
+  drone or a car);
 * ``sideways``: along x, ``step_m`` per frame (an arm's wrist camera sweeping a shelf);
 * ``orbit``: on a horizontal circle around a point of the scene, ``orbit_deg`` per frame,
   always looking at it;
@@ -44,6 +45,9 @@ MOTIONS = ('forward', 'sideways', 'orbit', 'rig')
 _LUMA = np.array([0.299, 0.587, 0.114])
 #: The point the orbit circles (world frame: the middle of the scene's objects).
 ORBIT_CENTRE = (0.0, 0.2, 3.0)
+#: Where the forward motion starts, metres behind the origin: its nearest object is then
+#: 1.4 m away, and 24 frames of 2 cm leave it 0.9 m away, inside the shipped depth range.
+FORWARD_START = 0.5
 #: Relative tolerance of the visibility test (a point is hidden when something is hit
 #: this much before it).
 VISIBILITY_RTOL = 1e-3
@@ -174,7 +178,7 @@ def rig_extrinsics(config: SequenceConfig) -> list[Pose]:
 def body_pose(config: SequenceConfig, index: int) -> Pose:
     """The camera's (or the rig body's) true pose at time step ``index``."""
     if config.motion == 'forward':
-        return Pose(np.eye(3), np.array([0.0, 0.0, config.step_m * index]))
+        return Pose(np.eye(3), np.array([0.0, 0.0, config.step_m * index - FORWARD_START]))
     if config.motion in ('sideways', 'rig'):
         return Pose(np.eye(3), np.array([config.step_m * index, 0.0, 0.0]))
     centre = np.asarray(ORBIT_CENTRE, np.float64)

@@ -57,7 +57,7 @@ STEREO = '/stereo'
 #: The presets (320 x 240; `generate --size` makes them larger).
 PRESETS: dict[str, SequenceConfig] = {
     'mvs_sideways': SequenceConfig(motion='sideways', n_frames=16),
-    'mvs_forward': SequenceConfig(motion='forward', n_frames=16, step_m=0.05),
+    'mvs_forward': SequenceConfig(motion='forward', n_frames=16, step_m=0.02),
     'mvs_orbit': SequenceConfig(motion='orbit', n_frames=16, orbit_deg=1.0),
     'mvs_rig': SequenceConfig(motion='rig', n_frames=6, rig_cameras=3),
 }
