@@ -31,9 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
     parser.add_argument('--grid', action='store_true',
                         help='also print every setting of the 18-setting OpenCV grid')
-    parser.add_argument('--skip', type=int, default=5, metavar='N',
+    parser.add_argument('--skip', type=int, default=10, metavar='N',
                         help='multi-view: summarise from the N-th frame with depth on, once '
-                        'the depth filter has had N frames (default 5)')
+                        'the depth filter has had N frames (default 10: about five '
+                        'keyframes of the simulated sequences)')
     parser.add_argument('--object-threshold', type=float, default=20.0, metavar='GREY',
                         help='imported views: pixels brighter than this are the object, '
                         'for its coverage (default 20)')

@@ -19,8 +19,9 @@ that many frames to converge):
 Without depth ground truth (``depth-nodes import-views``): per view, the share of its
 depths that a neighbouring view's depth confirms within 1 % (carried across with the known
 cameras: :mod:`depth_nodes.core.mvs.consistency`; among the depths that land where a
-neighbour has one), the share of object points inside the
-bounding box given to import-views, and the object's coverage (pixels brighter than
+neighbour has one), the share of all its depths whose points
+lie inside the bounding box given to import-views (a depth on the background is outside),
+and the object's coverage (pixels brighter than
 ``--object-threshold``, the share of them with a depth).
 """
 
@@ -150,11 +151,18 @@ def is_multiview_bag(path: str | Path) -> bool:
         return CONFIG_KEY in reader.custom_data
 
 
+def _stamp(msg: Any) -> int:
+    """A message's header stamp, ns: outputs are matched to their inputs by it (a node
+    with ``delay`` publishes a frame's depth when a later frame arrives, so the bag's
+    receive times do not pair them)."""
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
 def _depth_of(msg: Any) -> F32:
     return to_metres(image_to_array(msg), msg.encoding)
 
 
-def evaluate_multiview_bag(path: str | Path, *, skip: int = 5,
+def evaluate_multiview_bag(path: str | Path, *, skip: int = 10,
                            depth_topic: str | None = None) -> MultiviewReport:
     """Score the multi-view depth of a processed sequence bag (see the module notes).
 
@@ -176,7 +184,8 @@ def evaluate_multiview_bag(path: str | Path, *, skip: int = 5,
                               f'{camera_ns}/camera_info') if t in reader.topics]
         found: dict[str, dict[int, Any]] = {t: {} for t in topics}
         for m in reader.messages(topics):
-            found[m.topic][m.timestamp] = m.deserialize()
+            msg = m.deserialize()
+            found[m.topic][_stamp(msg)] = msg
     report = MultiviewReport(str(path), config.motion, skip)
     truth = found[f'{camera_ns}/depth_gt']
     rows = []
@@ -292,7 +301,8 @@ def evaluate_views_bag(path: str | Path, *, depth_topic: str = '/views/depth',
         topics = [depth_topic, info.image_topic, info.camera_info_topic, info.pose_topic]
         found: dict[str, dict[int, Any]] = {t: {} for t in topics}
         for m in reader.messages(topics):
-            found[m.topic][m.timestamp] = m.deserialize()
+            msg = m.deserialize()
+            found[m.topic][_stamp(msg)] = msg
     report = ViewsReport(str(path))
     depths = found[depth_topic]
     stamps = sorted(depths)
