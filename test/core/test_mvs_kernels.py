@@ -221,6 +221,27 @@ def test_parallax_kernel_equals_reference() -> None:
     assert float(np.median(want[1])) > 1.0
 
 
+@pytest.mark.kernels
+@pytest.mark.parametrize('tx', [0.1, -0.25])
+def test_a_view_covers_the_pixels_whose_whole_ray_it_sees(tx: float) -> None:
+    # one source moved along x, same camera: the plane of inverse depth rho is seen at
+    # column x + f tx rho, so the whole range is seen where both ends are inside
+    camera = Intrinsics(100.0, 100.0, 31.5, 23.5, 64, 48)
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 255, (48, 64), dtype=np.uint8)
+    planes = SweepPlanes(0.9, 8.0, 12)
+    inputs = sweep_cost_inputs(image, camera, [image], [camera],
+                               [(np.eye(3), np.array([tx, 0.0, 0.0]))], planes, best_k=1)
+    rho = np.full((48, 64), 0.5, np.float32)
+    _, _, covered = parallax(rho, inputs)
+    x = np.arange(64)[None, :].repeat(48, axis=0)
+    ends = [x + 100.0 * tx * float(r) for r in (planes.inverse_depths()[0],
+                                                planes.inverse_depths()[-1])]
+    want = (ends[0] >= 0) & (ends[0] <= 63) & (ends[1] >= 0) & (ends[1] <= 63)
+    np.testing.assert_array_equal(covered, want.astype(np.uint8))
+    assert 0 < want.mean() < 1
+
+
 # ------------------------------------------------------------------ filters
 def _random_state(rng: np.random.Generator, shape: tuple[int, int]) -> FilterState:
     rho = rng.uniform(0.2, 1.0, shape).astype(np.float32)

@@ -13,7 +13,9 @@ Standard deviation, in inverse depth: ``label_sigma`` planes (SGM's sub-plane pr
 which the measurements on the simulator show to dominate) and, in quadrature,
 ``match_sigma_px`` pixels in the source view where a plane step moves the projection most
 (the widest effective baseline at that pixel: ``match_sigma_px / (d q / d rho)``, which
-takes over where the baselines are short). A pixel where the whole plane range moves every
+takes over where the baselines are short), with the pixels a pose error moves the
+projections by (``pose_sigma_deg``: f x angle; ``pose_sigma_m``: f x distance / Z) added
+to ``match_sigma_px`` in quadrature. A pixel where the whole plane range moves every
 projection by less than ``min_parallax_px`` has no depth (no baseline for it: near a
 forward-moving camera's epipole, or too far away). Confidence: ``1 - cost_ratio`` (the best
 over the second-best aggregated cost of a label away from the winner).
@@ -74,8 +76,9 @@ class MvsParams:
                                  low=0, high=8)
     intensity_weight: int = setting(1, 'weight of the intensity cost (0: census only)',
                                     low=0, high=8)
-    intensity_truncation: int = setting(30, 'cap of the intensity cost, grey levels', low=1,
-                                        high=255)
+    intensity_truncation: int = setting(10, 'cap of the intensity cost, grey levels (low: '
+                                        'real views differ in shading, which census '
+                                        'ignores)', low=1, high=255)
     unseen_cost: int = setting(40, 'cost of a plane no source view sees', low=0,
                                high=TOP_COST)
     P1: int = setting(18, 'Penalty of a one-plane change between neighbours', low=0,
@@ -86,22 +89,37 @@ class MvsParams:
     paths: int = setting(8, 'aggregation paths: 4, 5 (one pass, bounded memory), 8 or 16',
                          choices=(4, 5, 8, 16))
     uniqueness_ratio: float = setting(5.0, 'Percent by which the best cost must beat the '
-                                      'best plane away from it (0: off)', low=0.0, high=99.0)
+                                      'best plane away from it (0: off; 15 clears most '
+                                      'depths of a dark, textureless background)',
+                                      low=0.0, high=99.0)
     speckle_size: int = setting(50, 'Largest region of similar planes removed as a speckle '
                                 '(0: off)', low=0, high=100000)
     speckle_range: float = setting(2.0, 'Largest plane step within one speckle region',
                                    low=0.0, high=1024.0)
-    label_sigma: float = setting(0.55, 'Standard deviation of the refined plane, in planes '
-                                 '(SGM\'s sub-plane precision: about 0.55 with 5 paths, '
-                                 '0.4 with 8, measured on the simulator)', low=1e-3,
+    label_sigma: float = setting(0.3, 'Standard deviation of the refined plane, in planes '
+                                 '(SGM\'s sub-plane precision: about 0.3 with 8 paths, '
+                                 '0.55 with 5, measured on the simulator)', low=1e-3,
                                  high=100.0)
     match_sigma_px: float = setting(0.1, 'Matching precision, px, in the source view that '
                                     'resolves a pixel best (added to label_sigma in '
                                     'quadrature: it dominates where the baseline is short)',
                                     low=0.0, high=10.0)
+    pose_sigma_deg: float = setting(0.0, 'Standard deviation of the rotation between a view '
+                                    'and its sources, degrees (the pose source\'s '
+                                    'relative error): it moves projections by f x angle '
+                                    'px, added to match_sigma_px in quadrature', low=0.0,
+                                    high=10.0)
+    pose_sigma_m: float = setting(0.0, 'Standard deviation of the translation between a '
+                                  'view and its sources, metres: f x it / Z px, added in '
+                                  'quadrature', low=0.0, high=10.0)
     min_parallax_px: float = setting(2.0, 'A pixel whose projections move less than this '
                                      'over the whole plane range, in every view, has no '
                                      'depth (px)', low=0.0, high=1000.0)
+    whole_range_view: bool = setting(True, 'A pixel has a depth only where some source view '
+                                     'sees its ray over the whole plane range (the '
+                                     "stereo matcher's border rule: near an image edge the "
+                                     'near planes leave the sources, and the far ones win '
+                                     'unopposed)')
     memory_mb: float = setting(160.0, 'memory for the cost volumes, MB (bands above it)',
                                low=0.0, high=1e6)
 
@@ -184,10 +202,12 @@ class MvsResult:
 @njit(cache=True, nogil=True)
 def _parallax_kernel(rho: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector: F64,
                      width: int, height: int, rho_lo: float, rho_hi: float, rate: F32,
-                     span: F32) -> None:
+                     span: F32, covered: NDArray[np.uint8]) -> None:
     """Per pixel, the largest rate (px per unit inverse depth) at which a source
-    projection moves at ``rho``, over the views that see the point, and the largest
-    distance any projection moves over [rho_lo, rho_hi]."""
+    projection moves at ``rho``, over the views that see the point, the largest
+    distance any projection moves over [rho_lo, rho_hi], and how many views see the
+    pixel's ray over the whole of [rho_lo, rho_hi] (both ends in front of the camera and
+    inside its image: the projections between lie on the segment joining them)."""
     h, w = rho.shape
     views = a_matrix.shape[0]
     for y in range(h):
@@ -198,6 +218,7 @@ def _parallax_kernel(rho: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector:
             s = normal[0] * rx + normal[1] * ry + normal[2] * rz
             best = 0.0
             widest = 0.0
+            seeing = 0
             r = rho[y, x]
             for j in range(views):
                 a0 = a_matrix[j, 0, 0] * x + a_matrix[j, 0, 1] * y + a_matrix[j, 0, 2]
@@ -209,9 +230,14 @@ def _parallax_kernel(rho: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector:
                 w_lo = a2 + rho_lo * b2
                 w_hi = a2 + rho_hi * b2
                 if w_lo > 1e-9 and w_hi > 1e-9:
-                    du = (a0 + rho_hi * b0) / w_hi - (a0 + rho_lo * b0) / w_lo
-                    dv = (a1 + rho_hi * b1) / w_hi - (a1 + rho_lo * b1) / w_lo
+                    u_lo, v_lo = (a0 + rho_lo * b0) / w_lo, (a1 + rho_lo * b1) / w_lo
+                    u_hi, v_hi = (a0 + rho_hi * b0) / w_hi, (a1 + rho_hi * b1) / w_hi
+                    du = u_hi - u_lo
+                    dv = v_hi - v_lo
                     widest = max(widest, math.sqrt(du * du + dv * dv))
+                    if 0.0 <= u_lo <= width - 1 and 0.0 <= v_lo <= height - 1 and \
+                            0.0 <= u_hi <= width - 1 and 0.0 <= v_hi <= height - 1:
+                        seeing += 1
                 if not (r > 0 and math.isfinite(r)):
                     continue
                 wz = a2 + r * b2
@@ -226,9 +252,11 @@ def _parallax_kernel(rho: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector:
                 best = max(best, math.sqrt(du * du + dv * dv))
             rate[y, x] = best
             span[y, x] = widest
+            covered[y, x] = seeing
 
 
-def parallax_reference(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32]:
+def parallax_reference(rho: F32, inputs: SweepCostInputs
+                       ) -> tuple[F32, F32, NDArray[np.uint8]]:
     """Plain numpy version of :func:`parallax`."""
     h, w = rho.shape
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -239,6 +267,7 @@ def parallax_reference(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32]:
     r = rho.astype(np.float64)
     rate = np.zeros((h, w))
     span = np.zeros((h, w))
+    covered = np.zeros((h, w), np.uint8)
     with np.errstate(invalid='ignore', divide='ignore'):
         for j in range(inputs.a_matrix.shape[0]):
             m = inputs.a_matrix[j]
@@ -246,9 +275,15 @@ def parallax_reference(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32]:
             b = [inputs.b_vector[j, i] * s for i in range(3)]
             w_lo, w_hi = a[2] + lo * b[2], a[2] + hi * b[2]
             ends = (w_lo > 1e-9) & (w_hi > 1e-9)
-            du = (a[0] + hi * b[0]) / w_hi - (a[0] + lo * b[0]) / w_lo
-            dv = (a[1] + hi * b[1]) / w_hi - (a[1] + lo * b[1]) / w_lo
+            ends_uv = [((a[0] + q * b[0]) / wq, (a[1] + q * b[1]) / wq)
+                       for q, wq in ((lo, w_lo), (hi, w_hi))]
+            du = ends_uv[1][0] - ends_uv[0][0]
+            dv = ends_uv[1][1] - ends_uv[0][1]
             span = np.maximum(span, np.where(ends, np.sqrt(du * du + dv * dv), 0.0))
+            inside = ends.copy()
+            for u_end, v_end in ends_uv:
+                inside &= (u_end >= 0) & (u_end <= w - 1) & (v_end >= 0) & (v_end <= h - 1)
+            covered += inside.astype(np.uint8)
             wz = a[2] + r * b[2]
             u, v = (a[0] + r * b[0]) / wz, (a[1] + r * b[1]) / wz
             seen = (r > 0) & np.isfinite(r) & (wz > 1e-9) & (u >= 0) & (u <= w - 1) & \
@@ -256,19 +291,20 @@ def parallax_reference(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32]:
             du = (b[0] * a[2] - a[0] * b[2]) / (wz * wz)
             dv = (b[1] * a[2] - a[1] * b[2]) / (wz * wz)
             rate = np.maximum(rate, np.where(seen, np.sqrt(du * du + dv * dv), 0.0))
-    return rate.astype(np.float32), span.astype(np.float32)
+    return rate.astype(np.float32), span.astype(np.float32), covered
 
 
-def parallax(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32]:
-    """``(rate, span)`` of :func:`_parallax_kernel` for a sweep's inputs."""
+def parallax(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32, NDArray[np.uint8]]:
+    """``(rate, span, covered)`` of :func:`_parallax_kernel` for a sweep's inputs."""
     h, w = rho.shape
     rate = np.empty((h, w), np.float32)
     span = np.empty((h, w), np.float32)
+    covered = np.empty((h, w), np.uint8)
     rhos = inputs.rho
     _parallax_kernel(np.ascontiguousarray(rho, np.float32), inputs.k_inv, inputs.normal,
                      inputs.a_matrix, inputs.b_vector, w, h, float(rhos[0]), float(rhos[-1]),
-                     rate, span)
-    return rate, span
+                     rate, span, covered)
+    return rate, span, covered
 
 
 class MultiViewMatcher:
@@ -316,15 +352,21 @@ class MultiViewMatcher:
         result = self._sgm.match_costs(inputs, ref)
         label = result.disparity.copy()
         rho = planes.rho_of(label).astype(np.float32)
-        rate, span = parallax(rho, inputs)
+        rate, span, covered = parallax(rho, inputs)
         step = planes.rho_step
         with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
+            focal = 0.5 * (camera.fx + camera.fy)
+            pixel_var = p.match_sigma_px ** 2 + (focal * math.radians(p.pose_sigma_deg)) ** 2 \
+                + (focal * p.pose_sigma_m * rho) ** 2
             sigma_rho = np.sqrt(np.float32(p.label_sigma * step) ** 2 +
-                                (np.float32(p.match_sigma_px) / rate) ** 2).astype(np.float32)
-            # no depth: too little parallax over the sweep, or a standard deviation as
-            # wide as the sweep itself
+                                pixel_var / (rate * rate)).astype(np.float32)
+            # no depth: too little parallax over the sweep, no view that sees the whole
+            # sweep (its near planes leave every source image: what the reference sees
+            # there, they may not), or a standard deviation as wide as the sweep itself
             bad = ~(span >= p.min_parallax_px) | ~(rho > 0) | \
                 ~(sigma_rho < float(inputs.rho[-1] - inputs.rho[0]))
+            if p.whole_range_view:
+                bad |= covered == 0
             rho[bad] = np.nan
             label[bad] = np.nan
             rho_var = np.where(bad, np.nan, sigma_rho * sigma_rho).astype(np.float32)

@@ -65,6 +65,10 @@ class StreamParams:
     keyframe_baseline: float = setting(0.02, 'Distance from the last keyframe that makes a '
                                        "new one, as a fraction of the scene's median depth",
                                        low=0.0, high=10.0)
+    max_view_angle_deg: float = setting(30.0, 'Largest rotation between a frame and a '
+                                        'source, degrees: from wider angles its surfaces '
+                                        'look too foreshortened to match', low=0.0,
+                                        high=180.0)
     keyframe_angle_deg: float = setting(10.0, 'Rotation from the last keyframe that makes a '
                                         'new one, degrees', low=0.0, high=180.0)
     delay: int = setting(0, 'Frames the depth of a view waits for: its sweep then also '
@@ -238,7 +242,8 @@ class MvsStream:
         shape = np.asarray(frame.image).shape
         chosen = [k for k in reversed(self.keyframes)
                   if k.pose.distance_to(frame.pose) >= max(least, 1e-9) and
-                  k.image.shape == shape]
+                  k.image.shape == shape and
+                  k.pose.angle_to(frame.pose) <= self.stream.max_view_angle_deg]
         return chosen[:self.stream.max_sources]
 
     def process(self, frame: Frame, rig: list[Frame] | None = None
@@ -287,9 +292,10 @@ class MvsStream:
                     for v in rig]
         if not sources:
             self._maybe_keyframe(frame, image, None, None)
-            return NoDepth('no_baseline', 'no keyframe is far enough from this view yet '
+            return NoDepth('no_baseline', 'no keyframe is far enough from this view '
                            f'(least {self.stream.min_baseline:g} x the median depth '
-                           f'{self._median_depth:.2f} m)', frame)
+                           f'{self._median_depth:.2f} m) and turned at most '
+                           f'{self.stream.max_view_angle_deg:g} degrees from it', frame)
         self._frames += 1
         offset = (self._frames * GOLDEN) % 1.0 if self.stream.dither else 0.0
         result = self.matcher.match(image, frame.camera, sources, offset=offset)
@@ -310,7 +316,8 @@ class MvsStream:
         shape = np.asarray(frame.image).shape
         return [SourceView(np.asarray(f.image), f.camera, frame.pose.relative_to(f.pose))
                 for f, _ in reversed(self._pending)
-                if f.pose.distance_to(frame.pose) >= least and np.asarray(f.image).shape == shape]
+                if f.pose.distance_to(frame.pose) >= least and np.asarray(f.image).shape == shape
+                and f.pose.angle_to(frame.pose) <= self.stream.max_view_angle_deg]
 
     def _check(self, frame: Frame, image: NDArray[Any], rig: list[Frame]) -> NoDepth | None:
         if image.ndim != 2 or min(image.shape) < 2:
