@@ -80,7 +80,7 @@ def _views(width: int, height: int, count: int) -> list[SequenceView]:
 
 
 def bench_multiview(*, size: tuple[int, int] = (320, 240), planes: int = 64, sources: int = 4,
-                    paths: int = 5, repeats: int = 10, busy: int = 0) -> MultiviewBench:
+                    paths: int = 8, repeats: int = 10, busy: int = 0) -> MultiviewBench:
     """Time the sweep, its cost kernel, a stream frame and the stereo matcher."""
     w, h = size
     views = _views(w, h, 2 * sources + 1)

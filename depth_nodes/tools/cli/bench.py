@@ -96,8 +96,8 @@ def _multiview_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--planes', type=int, default=64, help='planes of the sweep, and '
                         'disparities of the stereo matcher beside it (default 64)')
     parser.add_argument('--sources', type=int, default=4, help='source views (default 4)')
-    parser.add_argument('--paths', type=int, choices=PATHS, default=5,
-                        help='aggregation paths, of both (default 5, as '
+    parser.add_argument('--paths', type=int, choices=PATHS, default=8,
+                        help='aggregation paths, of both (default 8, as '
                         'config/multiview_pipeline.yaml)')
     parser.add_argument('--busy', type=int, default=0, metavar='N',
                         help='also time with N busy-loop processes beside it (default 0)')
