@@ -3,12 +3,14 @@ system publishes, or for a rig of synchronised cameras with fixed extrinsics.
 
 One camera (``cameras`` empty): subscribes ``image_rect`` (grey, colour, Bayer or
 16-bit; raw or through ``image_transport``) and ``camera_info`` (matched by exact stamp),
-and the poses of ``pose_source``: ``odom`` (nav_msgs/Odometry), ``pose``
-(geometry_msgs/PoseStamped) or ``/tf`` (where tf2_msgs is installed), taken at each image's
-stamp within ``pose_tolerance`` (:mod:`depth_nodes.ros.poses`). Every image is swept against
-the most recent keyframes that are far enough from it (plane sweep with SGM over the
-planes, best-k views, :mod:`depth_nodes.core.mvs`), its estimate checked against the
-keyframes' depths and fused over time with the estimates before it, moved with the poses.
+and the poses of ``pose_source``: ``odometry`` (nav_msgs/Odometry on ``odom``), ``pose``
+(geometry_msgs/PoseStamped on ``pose``) or ``tf`` (``/tf`` and ``/tf_static``, where
+tf2_msgs is installed), taken at each image's stamp within ``pose_tolerance``
+(:mod:`depth_nodes.ros.poses`).
+Every image is swept against the most recent keyframes that are far enough from it (plane
+sweep with SGM over the planes, best-k views, :mod:`depth_nodes.core.mvs`), its estimate
+checked against the keyframes' depths and fused over time with the estimates before it,
+moved with the poses.
 
 A rig (``cameras: [a, b, c]``): subscribes ``<camera>/image_rect`` and
 ``<camera>/camera_info`` of each, all matched by exact stamp; ``rig_extrinsics`` places
@@ -37,8 +39,9 @@ core's validation; the inputs and the pose source are read at start-up.
 Outputs are computed only while subscribed (lazy), or always offline; a node nobody
 listens to forgets its keyframes and filter.
 
-Frames without output are counted and logged with a reason: ``no_baseline`` (no keyframe far
-enough yet: nothing is published from it), ``no_pose`` (no pose within pose_tolerance),
+Frames without output are counted and logged with a reason: ``no_baseline`` (no keyframe
+both far enough and turned at most ``max_view_angle_deg``: nothing is published from it),
+``no_pose`` (no pose within pose_tolerance),
 ``pose_timeout`` (no pose came within pose_wait), ``bad_pose``, ``size_mismatch``,
 ``unsupported_encoding`` and the decoding reasons, ``uncalibrated``, ``bad_calibration``,
 ``sync_*``, ``time_jump``, ``stream_ended``.
@@ -56,6 +59,7 @@ import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from depth_nodes.core.depth_image import Intrinsics, depth_to_points, intrinsics
+from depth_nodes.core.mvs.cost import MAX_SOURCES
 from depth_nodes.core.mvs.geometry import Pose
 from depth_nodes.core.mvs.matcher import MvsParams
 from depth_nodes.core.mvs.poses import PoseMiss
@@ -177,8 +181,9 @@ class MultiViewStereoNode(DepthNode):
         if not self.cameras:
             return [Pose()]
         numbers = list(values['rig_extrinsics'])
-        if len(self.cameras) < 2:
-            raise ConfigError('a rig needs at least 2 cameras (or none: one camera)')
+        if not 2 <= len(self.cameras) <= MAX_SOURCES + 1:
+            raise ConfigError(f'a rig needs 2 to {MAX_SOURCES + 1} cameras (or none: one '
+                              f'camera), got {len(self.cameras)}')
         if not self.reference < len(self.cameras):
             raise ConfigError(f'reference_camera {self.reference} is not one of the '
                               f'{len(self.cameras)} cameras')

@@ -42,3 +42,20 @@ def test_a_source_within_the_angle_is_swept_against() -> None:
     assert ok.mean() > 0.5  # measured 0.68
     relative = np.abs(second.depth[ok] - truth[ok]) / truth[ok]
     assert np.median(relative) < 0.05  # measured 3.6 % (one frame, one source)
+
+
+def test_a_rig_and_its_keyframes_never_exceed_the_sweeps_sixteen_views() -> None:
+    # 17 cameras: the reference and 16 others, plus a keyframe from the step before and
+    # max_sources 16: the rig's views come first and the keyframes fill what is left (none)
+    config = SequenceConfig(motion='rig', width=48, height=32, n_frames=2, rig_cameras=17,
+                            rig_baseline_m=0.01)
+    stream = MvsStream(MvsParams(min_depth=0.9, max_depth=8.0, planes=8),
+                       StreamParams(max_sources=16))
+    views = list(simulate_sequence(config))
+    outputs = []
+    for step in (0, 1):
+        rig = [Frame(v.image, v.intrinsics, v.pose, v.stamp_ns) for v in views
+               if v.index == step]
+        outputs.append(stream.process(rig[0], rig[1:]))
+    assert all(isinstance(out, StreamDepth) for out in outputs)
+    assert len(stream.keyframes) >= 1  # the second step had a keyframe to add, and no room

@@ -221,6 +221,10 @@ def test_the_parameters_are_checked_like_the_core(context: Context) -> None:
         _make(context, cameras=['a', 'b'], rig_extrinsics=[0.0] * 7)
     with pytest.raises(ConfigError, match='pose_source none needs a rig'):
         _make(context, pose_source='none')
+    # a sweep takes at most 16 source views: a rig of 18 cameras is refused at start-up
+    with pytest.raises(ConfigError, match='a rig needs 2 to 17 cameras'):
+        _make(context, cameras=[f'c{k}' for k in range(18)],
+              rig_extrinsics=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] * 18)
     with pytest.raises(ConfigError, match='tf2_msgs'):
         _make(context, pose_source='tf')
     node = _make(context)

@@ -15,9 +15,12 @@ which the measurements on the simulator show to dominate) and, in quadrature,
 (the widest effective baseline at that pixel: ``match_sigma_px / (d q / d rho)``, which
 takes over where the baselines are short), with the pixels a pose error moves the
 projections by (``pose_sigma_deg``: f x angle; ``pose_sigma_m``: f x distance / Z) added
-to ``match_sigma_px`` in quadrature. A pixel where the whole plane range moves every
-projection by less than ``min_parallax_px`` has no depth (no baseline for it: near a
-forward-moving camera's epipole, or too far away). Confidence: ``1 - cost_ratio`` (the best
+to ``match_sigma_px`` in quadrature (the reference camera's focal length standing for
+the sources'; a rig's calibrated views get the same terms). A pixel has no depth where the
+whole plane range moves every projection by less than ``min_parallax_px`` (no baseline for
+it: near a forward-moving camera's epipole, or too far away), where its standard deviation
+spans the whole sweep, and (``whole_range_view``) where no source sees its ray over the
+whole plane range. Confidence: ``1 - cost_ratio`` (the best
 over the second-best aggregated cost of a label away from the winner).
 """
 

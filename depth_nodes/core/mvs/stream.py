@@ -3,19 +3,21 @@ and the geometric check, frame after frame (no ROS).
 
 Every frame (:meth:`MvsStream.process`) is a reference: it is swept against the most
 recent keyframes that are at least ``min_baseline`` of the scene's median depth away from
-it, with ``delay`` also against the frames that came after it (sources from both sides,
-interleaved, ``max_sources`` at most), and against the views given with it (a rig's other
-cameras, same stamp). Its estimate is checked against the keyframes' depth maps (a pixel
-that some checked view contradicts and none confirms is not fused into an estimate the
-filter has, and its confidence is halved), then fused with the filter's state moved into
-it from the previous frame. The frame becomes a keyframe when it is ``keyframe_baseline``
-of the median depth from the last keyframe, or turned by ``keyframe_angle_deg``. The planes
-shift by a fraction of a step from frame to frame (``dither``), so the filter averages the
-sub-plane refinement's bias away.
+it and turned at most ``max_view_angle_deg`` from it, with ``delay`` also against the
+frames that came after it (sources from both sides, interleaved, ``max_sources`` at most),
+and against the views given with it (a rig's other cameras, same stamp: first, whatever
+their distance and angle; a sweep takes 16 views at most). Its estimate is checked against
+the keyframes' depth maps (a pixel that some checked view contradicts and none confirms is
+not fused into an estimate the filter has, and its confidence is halved), then fused with
+the filter's state moved into it from the previous frame. The frame becomes a keyframe
+when it is ``keyframe_baseline`` of the median depth from the last keyframe, or turned by
+``keyframe_angle_deg``. The planes shift by a fraction of a step from frame to frame
+(``dither``), so the filter averages the sub-plane refinement's bias away.
 
 A frame gives no depth, with its reason (:class:`NoDepth`), when no keyframe is far enough
-yet (``no_baseline``: nothing is estimated from it; it may become the first keyframe), or
-when its image, camera or pose do not fit (``size_mismatch``, ``bad_pose``).
+and turned little enough (``no_baseline``: nothing is estimated from it; it may become the
+first keyframe), or when its image, camera or pose do not fit (``size_mismatch``,
+``bad_pose``).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from numpy.typing import NDArray
 
 from depth_nodes.core.depth_image import Intrinsics
 from depth_nodes.core.mvs.consistency import consistency
-from depth_nodes.core.mvs.cost import camera_matrix
+from depth_nodes.core.mvs.cost import MAX_SOURCES, camera_matrix
 from depth_nodes.core.mvs.fusion import (
     FilterSettings,
     FilterState,
@@ -57,8 +59,8 @@ GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 class StreamParams:
     """Keyframes, filter and check settings (the sweep's are :class:`MvsParams`)."""
 
-    max_sources: int = setting(4, 'Keyframes a frame is swept against, the most recent',
-                               low=1, high=16)
+    max_sources: int = setting(4, 'Keyframes (and, with delay, later frames) a frame is '
+                               'swept against, the most recent', low=1, high=16)
     max_keyframes: int = setting(8, 'Keyframes kept', low=1, high=64)
     min_baseline: float = setting(0.01, 'Least distance of a source keyframe, as a fraction '
                                   "of the scene's median depth", low=0.0, high=10.0)
@@ -287,13 +289,16 @@ class MvsStream:
         later = self._later_sources(frame)
         past: list[SourceView] = [SourceView(k.image, k.camera, frame.pose.relative_to(k.pose),
                                              k.census) for k in keyframes]
-        sources = _interleave(past, later)[:self.stream.max_sources]
-        sources += [SourceView(np.asarray(v.image), v.camera, frame.pose.relative_to(v.pose))
-                    for v in rig]
+        # the rig's views first: a sweep takes at most MAX_SOURCES views
+        sources = [SourceView(np.asarray(v.image), v.camera, frame.pose.relative_to(v.pose))
+                   for v in rig][:MAX_SOURCES]
+        sources += _interleave(past, later)[:min(self.stream.max_sources,
+                                                 MAX_SOURCES - len(sources))]
         if not sources:
             self._maybe_keyframe(frame, image, None, None)
-            return NoDepth('no_baseline', 'no keyframe is far enough from this view '
-                           f'(least {self.stream.min_baseline:g} x the median depth '
+            return NoDepth('no_baseline', 'no keyframe (or later frame, with delay) of '
+                           'this size is both far enough from this view (at least '
+                           f'{self.stream.min_baseline:g} x the median depth '
                            f'{self._median_depth:.2f} m) and turned at most '
                            f'{self.stream.max_view_angle_deg:g} degrees from it', frame)
         self._frames += 1
@@ -328,7 +333,7 @@ class MvsStream:
             if shape != image.shape or (view.camera.height, view.camera.width) != shape:
                 return NoDepth('size_mismatch', f'image {shape[1::-1]} and camera '
                                f'{view.camera.width}x{view.camera.height} and reference '
-                               f'{image.shape[1]}x{image.shape[0]} must agree')
+                               f'{image.shape[1]}x{image.shape[0]} must agree', frame)
             try:
                 view.pose.validate()
             except ArgumentError as exc:

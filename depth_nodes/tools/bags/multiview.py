@@ -46,7 +46,7 @@ from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim.sequence import SequenceConfig, SequenceView, rig_extrinsics, simulate_sequence
-from depth_nodes.tools.bags.io import BagReader, BagWriter
+from depth_nodes.tools.bags.io import BagWriter
 from depth_nodes.tools.signals import stop_requested
 
 CONFIG_KEY = 'depth_nodes.sim.sequence'
@@ -195,20 +195,3 @@ def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> Seque
     except (ValueError, TypeError, ConfigError) as exc:
         raise BagError(f'{path}: malformed {CONFIG_KEY} metadata: {exc}') from None
 
-
-def read_topics(path: str | Path, topics: list[str]) -> tuple[SequenceConfig,
-                                                            dict[str, dict[int, Any]]]:
-    """The configuration of a sequence bag (or of a bag processed from one) and the
-    messages, by stamp, of ``topics``.
-
-    Raises:
-        BagError: No bag, not a sequence bag, or a topic missing.
-    """
-    with BagReader(Path(path)) as reader:
-        config = config_from_metadata(dict(reader.custom_data), path)
-        for topic in topics:
-            reader.require(topic)
-        found: dict[str, dict[int, Any]] = {t: {} for t in topics}
-        for m in reader.messages(topics):
-            found[m.topic][m.timestamp] = m.deserialize()
-    return config, found

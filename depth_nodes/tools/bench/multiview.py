@@ -95,7 +95,7 @@ def bench_multiview(*, size: tuple[int, int] = (320, 240), planes: int = 64, sou
     for view in views[:-1]:
         stream.process(Frame(view.image, view.intrinsics, view.pose, view.stamp_ns))
     stereo = SgmMatcher(SgmParams(disparity_range=planes, paths=paths))
-    left, right = views[-1].image, views[-2].image
+    left, right = views[-2].image, views[-1].image  # the camera moves to +x
     threads = numba.get_num_threads()
 
     def cost_one_thread() -> None:
