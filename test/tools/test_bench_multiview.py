@@ -23,6 +23,9 @@ def test_bench_multiview_prints_the_sweep_beside_the_stereo_matcher() -> None:
     assert sweep > 0
     assert stereo > 0
     assert ratio == pytest.approx(sweep / stereo, rel=0.02, abs=0.01)
+    # the stream's frame is swept against as many keyframes as the sweep has sources
+    assert re.search(r'a frame of the stream \(sweep, check, filter\)\s+[\d.]+ ms\s+'
+                     r'\(2 keyframes\)', out), out
     # the memory line: the plane counts below the width only (64 and 128 of 64, 128, 256)
     assert re.search(r'\(memory_mb 25\): 64 planes [\d.]+ MB, 128 planes [\d.]+ MB$',
                      out, re.MULTILINE), out

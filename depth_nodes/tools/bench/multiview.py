@@ -3,8 +3,10 @@ stereo matcher on the same number of pixels x labels, measured in the same run.
 
 On views of the simulator's sideways sequence (the reference and ``sources`` views before
 it), per frame: the whole sweep (costs of every view, SGM over the planes, refinement,
-standard deviation), the cost kernel alone on one thread, a frame of the stream (sweep,
-check against the keyframes, the filter), and the census SGM stereo matcher on a pair of
+standard deviation; the sources' census images computed in the call), the cost kernel
+alone on one thread, a frame of the stream as the node runs it (the sweep against
+``sources`` keyframes whose census images it keeps, the check against them, the filter),
+and the census SGM stereo matcher on a pair of
 the same size with as many disparities as planes and the same paths. Memory: the
 matcher's buffers at several plane counts with bounded bands (``memory_mb``): they stay
 about constant. With ``busy``, everything again with that many cores kept busy.
@@ -43,6 +45,8 @@ class MultiviewBench:
     sweep_ms: float
     cost_ms: float
     stream_ms: float
+    #: Keyframes the stream's frame was swept against.
+    stream_sources: int
     stereo_ms: float
     #: Matcher buffers (MB) by plane count, with ``memory_mb`` bands.
     memory_mb: dict[int, float]
@@ -59,7 +63,8 @@ class MultiviewBench:
             f'  plane sweep (costs, SGM, refinement)     {self.sweep_ms:8.1f} ms',
             f'    its cost kernel alone, one thread     {self.cost_ms:8.1f} ms   '
             f'{cells * self.sources / self.cost_ms / 1e6:5.2f} G view-plane costs/s',
-            f'  a frame of the stream (sweep, check, filter) {self.stream_ms:5.1f} ms',
+            f'  a frame of the stream (sweep, check, filter) {self.stream_ms:5.1f} ms   '
+            f'({self.stream_sources} keyframes)',
             f'  census SGM stereo, {self.planes} disparities     {self.stereo_ms:8.1f} ms   '
             f'sweep / stereo = {self.sweep_ms / self.stereo_ms:5.2f}',
             '  matcher buffers with bands (memory_mb 25): ' + ', '.join(
@@ -91,9 +96,12 @@ def bench_multiview(*, size: tuple[int, int] = (320, 240), planes: int = 64, sou
             for v in earlier]
     inputs = matcher.match(reference.image, reference.intrinsics, srcs).inputs
     volume = np.empty(inputs.shape, np.uint8)
-    stream = MvsStream(params, StreamParams(max_sources=sources))
+    # every view a keyframe, so that the stream's frame too is swept against `sources`
+    stream = MvsStream(params, StreamParams(max_sources=sources, keyframe_baseline=0.0))
     for view in views[:-1]:
         stream.process(Frame(view.image, view.intrinsics, view.pose, view.stamp_ns))
+    stream_sources = len(stream.sources_for(Frame(reference.image, reference.intrinsics,
+                                                  reference.pose, reference.stamp_ns)))
     stereo = SgmMatcher(SgmParams(disparity_range=planes, paths=paths))
     left, right = views[-2].image, views[-1].image  # the camera moves to +x
     threads = numba.get_num_threads()
@@ -134,4 +142,5 @@ def bench_multiview(*, size: tuple[int, int] = (320, 240), planes: int = 64, sou
                 loop.kill()
                 loop.wait()
     return MultiviewBench(w, h, planes, len(srcs), paths, threads, repeats, ms['sweep'],
-                          ms['cost'], ms['stream'], ms['stereo'], memory, busy, busy_ms)
+                          ms['cost'], ms['stream'], stream_sources, ms['stereo'], memory,
+                          busy, busy_ms)
