@@ -81,7 +81,8 @@ print(json.dumps(out))
 
 #: Arguments each command needs at least.
 MINIMAL = {'generate': ['out'], 'process': ['in', 'out'], 'convert': ['in', 'out'],
-           'import-pair': ['l.png', 'r.png', 'out'], 'pipeline': [], 'play': ['bag'],
+           'import-pair': ['l.png', 'r.png', 'out'], 'import-views': ['par.txt', 'out'],
+           'pipeline': [], 'play': ['bag'],
            'record': ['out', '--topics', '/a'], 'reindex': ['bag'], 'param': ['list'],
            'node': ['list'], 'topic': ['list'], 'diag': [], 'eval': ['bag'],
            'eval-sl': ['bag'], 'eval-tof': ['bag'], 'bench': ['sgm']}
@@ -177,7 +178,7 @@ def test_bench_without_a_stage_names_them() -> None:
     with pytest.raises(ConfigError) as caught:
         bench_cli.run(_bench())
     assert str(caught.value) == ('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
-                                 'structured_light, tof, soak, live)')
+                                 'multiview, structured_light, tof, soak, live)')
 
 
 def test_bench_live_passes_its_options_on(monkeypatch: pytest.MonkeyPatch,
