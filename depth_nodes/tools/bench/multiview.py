@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 from depth_nodes.core.mvs.matcher import MultiViewMatcher, MvsParams, SourceView
-from depth_nodes.core.mvs.stream import Frame, MvsStream, StreamParams
+from depth_nodes.core.mvs.stream import Frame, MvsStream, StreamDepth, StreamParams
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.sim.sequence import SequenceConfig, SequenceView, simulate_sequence
 from depth_nodes.tools.bench.sgm import busy_loops
@@ -100,6 +100,9 @@ def bench_multiview(*, size: tuple[int, int] = (320, 240), planes: int = 64, sou
     stream = MvsStream(params, StreamParams(max_sources=sources, keyframe_baseline=0.0))
     for view in views[:-1]:
         stream.process(Frame(view.image, view.intrinsics, view.pose, view.stamp_ns))
+    # the timed frames add no keyframe (the same reference again would evict the others)
+    stream.set_params(params, StreamParams(max_sources=sources, keyframe_baseline=10.0,
+                                           keyframe_angle_deg=180.0))
     stream_sources = len(stream.sources_for(Frame(reference.image, reference.intrinsics,
                                                   reference.pose, reference.stamp_ns)))
     stereo = SgmMatcher(SgmParams(disparity_range=planes, paths=paths))
@@ -116,8 +119,10 @@ def bench_multiview(*, size: tuple[int, int] = (320, 240), planes: int = 64, sou
     def stream_frame() -> None:
         # the same reference again: a stream frame with its keyframes and filter state
         stream.reset_filter()  # the same work every round
-        stream.process(Frame(reference.image, reference.intrinsics, reference.pose,
-                             reference.stamp_ns))
+        out = stream.process(Frame(reference.image, reference.intrinsics, reference.pose,
+                                   reference.stamp_ns))
+        if not isinstance(out, StreamDepth):
+            raise RuntimeError(f'the timed stream frame gave no depth: {out}')
 
     fns = {'sweep': lambda: matcher.match(reference.image, reference.intrinsics, srcs),
            'cost': cost_one_thread, 'stream': stream_frame,
