@@ -39,6 +39,17 @@ def _wait(condition: object, proc: subprocess.Popen[bytes], log: Path) -> None:
         time.sleep(0.05)
 
 
+SHM = Path('/dev/shm')
+
+
+def _shm_segments() -> set[str]:
+    """Fast DDS's files in /dev/shm: segments, the ports of this test's own domain, their
+    mutexes."""
+    if not SHM.is_dir():
+        return set()
+    return {p.name for p in SHM.iterdir() if p.name.startswith(('fastrtps_', 'sem.fastrtps_'))}
+
+
 def test_a_killed_recording_loses_at_most_its_last_second(tmp_path: Path,
                                                           context: Context) -> None:
     assert 2 * FLUSH_AGE_S < 1.0
@@ -46,6 +57,7 @@ def test_a_killed_recording_loses_at_most_its_last_second(tmp_path: Path,
     images = node.create_publisher(Image, '/cam/image_raw', 100)
     infos = node.create_publisher(CameraInfo, '/cam/camera_info', 100)
     log = tmp_path / 'record.log'
+    segments = _shm_segments()
     with log.open('wb') as out:
         recorder = subprocess.Popen(
             [sys.executable, '-m', 'depth_nodes.tools.cli', 'record', str(tmp_path / 'rec'),
@@ -77,7 +89,12 @@ def test_a_killed_recording_loses_at_most_its_last_second(tmp_path: Path,
     finally:
         if recorder.poll() is None:
             recorder.kill()
+            recorder.wait(timeout=30)
         node.destroy_node()
+        # a killed process cannot remove its Fast DDS segment (70 MB in /dev/shm) nor its
+        # ports: what came with the recorder goes with it (the domain is this test's own)
+        for name in _shm_segments() - segments:
+            (SHM / name).unlink(missing_ok=True)
     assert recorder.returncode == -signal.SIGKILL
     bag = tmp_path / 'rec'
     assert not (bag / 'metadata.yaml').exists()
