@@ -164,6 +164,11 @@ def test_flying_pixels_match_the_plain_reference() -> None:
         found = remove_flying_pixels(r, *args, sigma=sigma)
         np.testing.assert_array_equal(found, flying_reference(r, *args, sigma=sigma))
         assert found.any()
+    for margin, spikes in ((0.1, True), (0.3, False), (0.0, True)):  # the depth filter's
+        found = remove_flying_pixels(r, 0.01, sigma=sigma, margin=margin, spikes=spikes)
+        np.testing.assert_array_equal(found, flying_reference(
+            r, 0.01, sigma=sigma, margin=margin, spikes=spikes))
+        assert found.any()
 
 
 def _rows(values: list[float]) -> np.ndarray:

@@ -18,58 +18,99 @@ NOISE_SIGMAS = 3.0
 #: ``flying_pixel_threshold`` and the slopes beyond them for the pixel between them to be
 #: flying.
 BETWEEN_SIGMAS = 2.5
+#: ``spikes``: the smallest share of a pixel's smaller step its neighbours must differ by.
+SLIT_SHARE = 0.25
 #: The four directions the flying-pixel test looks along: (dy, dx).
 _DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _between(d: float, a: float, b: float, a2: float, b2: float, sa: float, sb: float,
+             absolute: float, margin: float) -> bool:
+    """``d`` lies between its neighbours ``a`` and ``b``, at least ``margin`` of their gap
+    from each, in a gap wider than their noise and than the slopes beyond them (``a2``,
+    ``b2``) explain; NaN anywhere: False. Written without branches: on noisy depth, which
+    side a pixel lies on is a coin toss that a branch predictor loses half the time, and
+    the comparisons vectorise along a row."""
+    gap = abs(a - b)
+    beyond = abs(a - a2) + abs(b - b2)
+    return bool(((d - a) * (d - b) < 0.0) & (min(abs(d - a), abs(d - b)) > margin * gap) &
+                (gap - beyond > absolute + BETWEEN_SIGMAS * np.sqrt(sa * sa + sb * sb)))
+
+
+#: Pixels of padding the kernel's input has.
+PAD = 2
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def _spike(d: float, a: float, b: float, sa: float, sb: float, absolute: float) -> bool:
+    """``d`` lies beyond both neighbours (nearer than both, or farther) by more than
+    ``absolute`` and their noise, and they differ by as much, and by at least a quarter of
+    its smaller step: a far surface seen through a slit between two objects at different
+    depths (a thin pole in front of one surface has neighbours alike, and passes)."""
+    noise = absolute + BETWEEN_SIGMAS * np.sqrt(sa * sa + sb * sb)
+    gap = abs(a - b)
+    return bool(((d > max(a, b) + noise) | (d < min(a, b) - noise)) & (gap > noise) &
+                (gap > SLIT_SHARE * min(abs(d - a), abs(d - b))))
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _flying_kernel(r: F32, sigma: F32, absolute: float, jump: float,
-                   out: NDArray[np.bool_]) -> None:
-    """``r`` and ``sigma`` padded by two pixels (NaN and 0): no bounds to check."""
+def _flying_kernel(r: F32, sigma: F32, absolute: float, jump: float, margin: float,
+                   spikes: bool, out: NDArray[np.bool_]) -> None:
+    """``r`` and ``sigma`` padded by PAD pixels (NaN and 0): no bounds to check."""
     height, width = out.shape
     for y in numba.prange(height):
-        for x in range(width):
-            out[y, x] = False
-            d = r[y + 2, x + 2]
-            if not np.isfinite(d):
-                continue
-            s = sigma[y + 2, x + 2]
-            flying = False
-            if jump > 0.0:  # next to a jump to any of the 8 neighbours
+        if jump > 0.0:  # next to a jump to any of the 8 neighbours
+            for x in range(width):
+                d = r[y + PAD, x + PAD]
+                s = sigma[y + PAD, x + PAD]
+                flying = False
                 limit = jump * d
                 for dy in range(-1, 2):
                     for dx in range(-1, 2):
-                        step = abs(d - r[y + 2 + dy, x + 2 + dx])  # NaN: never true
+                        step = abs(d - r[y + PAD + dy, x + PAD + dx])  # NaN: never true
                         if step > limit:
-                            sn = sigma[y + 2 + dy, x + 2 + dx]
+                            sn = sigma[y + PAD + dy, x + PAD + dx]
                             if step > limit + NOISE_SIGMAS * np.sqrt(s * s + sn * sn):
                                 flying = True
-            if absolute > 0.0 and not flying:
-                # along the four directions: between its two neighbours, in a gap wider
-                # than their noise and than the slopes beyond them explain (unknown pixels
-                # there: not judged in that direction)
-                for k in range(4):
-                    dy, dx = (0, 1) if k == 0 else (1, 0) if k == 1 else (1, 1) if k == 2 \
-                        else (1, -1)
-                    a = r[y + 2 - dy, x + 2 - dx]
-                    b = r[y + 2 + dy, x + 2 + dx]
-                    if not (d - a) * (d - b) < 0.0:
-                        continue
-                    sa = sigma[y + 2 - dy, x + 2 - dx]
-                    sb = sigma[y + 2 + dy, x + 2 + dx]
-                    gap = abs(a - b)
-                    if not gap > absolute + BETWEEN_SIGMAS * max(sa, sb):  # cheap first
-                        continue
-                    beyond = abs(a - r[y + 2 - 2 * dy, x + 2 - 2 * dx]) + \
-                        abs(b - r[y + 2 + 2 * dy, x + 2 + 2 * dx])
-                    # NaN beyond: not judged
-                    if gap - beyond > absolute + BETWEEN_SIGMAS * np.sqrt(sa * sa + sb * sb):
-                        flying = True
-            out[y, x] = flying
+                out[y, x] = flying
+        else:
+            out[y, :] = False
+        if absolute > 0.0:
+            # along the four directions: between its two neighbours (unknown pixels there
+            # or beyond: not judged in that direction)
+            c, u, uu, dn, dd = y + 2, y + 1, y, y + 3, y + 4
+            for x in range(width):
+                i = x + 2
+                d = r[c, i]
+                out[y, x] |= (
+                    _between(d, r[c, i - 1], r[c, i + 1], r[c, i - 2], r[c, i + 2],
+                             sigma[c, i - 1], sigma[c, i + 1], absolute, margin) |
+                    _between(d, r[u, i], r[dn, i], r[uu, i], r[dd, i],
+                             sigma[u, i], sigma[dn, i], absolute, margin) |
+                    _between(d, r[u, i - 1], r[dn, i + 1], r[uu, i - 2], r[dd, i + 2],
+                             sigma[u, i - 1], sigma[dn, i + 1], absolute, margin) |
+                    _between(d, r[u, i + 1], r[dn, i - 1], r[uu, i + 2], r[dd, i - 2],
+                             sigma[u, i + 1], sigma[dn, i - 1], absolute, margin))
+            if spikes:
+                for x in range(width):
+                    i = x + 2
+                    d = r[c, i]
+                    out[y, x] |= (
+                        _spike(d, r[c, i - 1], r[c, i + 1], sigma[c, i - 1], sigma[c, i + 1],
+                               absolute) |
+                        _spike(d, r[u, i], r[dn, i], sigma[u, i], sigma[dn, i], absolute) |
+                        _spike(d, r[u, i - 1], r[dn, i + 1], sigma[u, i - 1],
+                               sigma[dn, i + 1], absolute) |
+                        _spike(d, r[u, i + 1], r[dn, i - 1], sigma[u, i + 1],
+                               sigma[dn, i - 1], absolute))
+        for x in range(width):
+            out[y, x] &= np.isfinite(r[y + PAD, x + PAD])
 
 
 def remove_flying_pixels(range_m: F32, absolute: float, jump: float = 0.0,
-                         sigma: F32 | None = None) -> NDArray[np.bool_]:
+                         sigma: F32 | None = None, margin: float = 0.0,
+                         spikes: bool = False) -> NDArray[np.bool_]:
     """The flying pixels of a range image (see the module notes), True where:
 
     * (``absolute`` > 0) along one of the four directions through the pixel, its range
@@ -84,7 +125,14 @@ def remove_flying_pixels(range_m: F32, absolute: float, jump: float = 0.0,
       (whose weak direct return the light bounced off the surface behind outweighs) leave
       ranges that belong to neither surface.
 
-    ``sigma`` is the range's expected noise (default 0). Neighbours outside the image or
+    With ``margin`` > 0 the range must also lie at least that fraction of the neighbours'
+    gap from each of them: the pixel next to a mixed one, on a surface, lies between its
+    neighbours by its noise alone, close to one of them. With ``spikes`` (and ``absolute``
+    > 0) a pixel is also flying where, along one of the directions, it lies beyond both
+    neighbours by more than ``absolute`` plus their noise, and they differ by as much and
+    by at least :data:`SLIT_SHARE` of its smaller step: a slit between two objects at
+    different depths, whose pixel mixes the far surface with the near ones. ``sigma`` is
+    the range's expected noise (default 0). Neighbours outside the image or
     unknown are not used (nor a direction whose pixel beyond a neighbour is); unknown
     pixels are never flying.
     """
@@ -93,23 +141,24 @@ def remove_flying_pixels(range_m: F32, absolute: float, jump: float = 0.0,
     noise = np.zeros(r.shape, np.float32) if sigma is None else \
         np.ascontiguousarray(np.nan_to_num(sigma, nan=0.0, posinf=0.0), np.float32)
     if absolute > 0 or jump > 0:
-        _flying_kernel(np.pad(r, 2, constant_values=np.nan), np.pad(noise, 2),
-                       float(absolute), float(jump), out)
+        _flying_kernel(np.pad(r, PAD, constant_values=np.nan), np.pad(noise, PAD),
+                       float(absolute), float(jump), float(margin), bool(spikes), out)
     return out
 
 
 def flying_reference(range_m: F32, absolute: float, jump: float = 0.0,
-                     sigma: F32 | None = None) -> NDArray[np.bool_]:
+                     sigma: F32 | None = None, margin: float = 0.0,
+                     spikes: bool = False) -> NDArray[np.bool_]:
     """Plain numpy reference of :func:`remove_flying_pixels` (for the tests)."""
     r = np.asarray(range_m, np.float64)
     h, w = r.shape
     noise = np.zeros((h, w)) if sigma is None else np.nan_to_num(
         np.asarray(sigma, np.float64), nan=0.0, posinf=0.0)
-    pad = np.pad(r, 2, constant_values=np.nan)
-    pad_s = np.pad(noise, 2)
+    pad = np.pad(r, PAD, constant_values=np.nan)
+    pad_s = np.pad(noise, PAD)
 
     def at(dy: int, dx: int, image: NDArray[np.float64] = pad) -> NDArray[np.float64]:
-        return image[2 + dy:2 + dy + h, 2 + dx:2 + dx + w]
+        return image[PAD + dy:PAD + dy + h, PAD + dx:PAD + dx + w]
 
     out = np.zeros((h, w), bool)
     with np.errstate(invalid='ignore'):
@@ -118,12 +167,17 @@ def flying_reference(range_m: F32, absolute: float, jump: float = 0.0,
                 for dx in (-1, 0, 1):
                     out |= np.abs(r - at(dy, dx)) > jump * r + NOISE_SIGMAS * np.sqrt(
                         noise ** 2 + at(dy, dx, pad_s) ** 2)
-        if absolute > 0:
-            for dy, dx in _DIRECTIONS:
-                a, b = at(-dy, -dx), at(dy, dx)
-                beyond = np.abs(a - at(-2 * dy, -2 * dx)) + np.abs(b - at(2 * dy, 2 * dx))
-                unexplained = np.abs(a - b) - beyond
-                sa, sb = at(-dy, -dx, pad_s), at(dy, dx, pad_s)
-                out |= ((r - a) * (r - b) < 0) & \
-                    (unexplained > absolute + BETWEEN_SIGMAS * np.sqrt(sa ** 2 + sb ** 2))
+        for dy, dx in _DIRECTIONS if absolute > 0 else ():
+            a, b = at(-dy, -dx), at(dy, dx)
+            beyond = np.abs(a - at(-2 * dy, -2 * dx)) + np.abs(b - at(2 * dy, 2 * dx))
+            unexplained = np.abs(a - b) - beyond
+            sa, sb = at(-dy, -dx, pad_s), at(dy, dx, pad_s)
+            clear = np.minimum(np.abs(r - a), np.abs(r - b)) > margin * np.abs(a - b)
+            noise = absolute + BETWEEN_SIGMAS * np.sqrt(sa ** 2 + sb ** 2)
+            out |= ((r - a) * (r - b) < 0) & clear & (unexplained > noise)
+            if spikes:
+                gap = np.abs(a - b)
+                out |= ((r > np.maximum(a, b) + noise) | (r < np.minimum(a, b) - noise)) & \
+                    (gap > noise) & (gap > SLIT_SHARE * np.minimum(np.abs(r - a),
+                                                                   np.abs(r - b)))
     return out & np.isfinite(r)
