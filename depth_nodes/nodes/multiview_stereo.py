@@ -50,7 +50,6 @@ both far enough and turned at most ``max_view_angle_deg``: nothing is published 
 from __future__ import annotations
 
 import copy
-from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
@@ -62,7 +61,6 @@ from depth_nodes.core.depth_image import Intrinsics, depth_to_points, intrinsics
 from depth_nodes.core.mvs.cost import MAX_SOURCES
 from depth_nodes.core.mvs.geometry import Pose
 from depth_nodes.core.mvs.matcher import MvsParams
-from depth_nodes.core.mvs.poses import PoseMiss
 from depth_nodes.core.mvs.stream import Frame, MvsStream, NoDepth, StreamDepth, StreamParams
 from depth_nodes.core.reproject import depth_to_millimetres
 from depth_nodes.errors import ArgumentError, CalibrationError, ConfigError
@@ -78,7 +76,7 @@ from depth_nodes.ros.params import (
     specs_from,
 )
 from depth_nodes.ros.pointcloud import build_pointcloud
-from depth_nodes.ros.poses import PoseInput, mount_pose, pose_parameters
+from depth_nodes.ros.poses import PoseInput, PoseWaiter, mount_pose, pose_parameters
 from depth_nodes.ros.workers import use_threads
 
 SWEEP = tuple(f.name for f in fields(MvsParams))
@@ -159,9 +157,9 @@ class MultiViewStereoNode(DepthNode):
             raise ConfigError('pose_source none needs a rig (cameras): one camera without '
                               'poses has no baseline')
         self.poses = PoseInput(self, values, on_pose=self._resolve)
+        self.waiter: PoseWaiter[_Waiting] = PoseWaiter(self, self.poses, self._process)
         self.stream = MvsStream(_sweep(values), _stream(values))
         self._infos: dict[str, InfoCache[Any]] = {}
-        self._waiting: deque[_Waiting] = deque()
         self._headers: dict[int, Any] = {}
         self.pub_depth = self.add_output(Image, 'depth')
         self.pub_info = self.add_output(CameraInfo, 'depth/camera_info')
@@ -202,7 +200,7 @@ class MultiViewStereoNode(DepthNode):
                    self.pub_converged, self.pub_points)
         if self.skip_unwanted(*(out.wanted for out in outputs)):
             self.stream.reset()  # nobody listens: the keyframes and the filter go stale
-            self._waiting.clear()
+            self.waiter.clear()
             return
         views = []
         for k in range(len(msgs) // 2):
@@ -218,8 +216,8 @@ class MultiViewStereoNode(DepthNode):
             views.append((grey, camera, info))
         header = msgs[2 * self.reference if self.cameras else 0].header
         stamp = int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
-        self._waiting.append(_Waiting(stamp, copy.deepcopy(header), views))
-        self._resolve()
+        self.waiter.add(stamp, header.frame_id, _Waiting(stamp, copy.deepcopy(header), views),
+                        self.params.values['pose_tolerance'], self.params.values['pose_wait'])
 
     def _camera(self, info: Any, what: str, shape: tuple[int, ...]) -> Intrinsics | None:
         cache = self._infos.setdefault(what, InfoCache(camera_info_to_model))
@@ -234,23 +232,9 @@ class MultiViewStereoNode(DepthNode):
         return None
 
     def _resolve(self) -> None:
-        """Process the waiting image sets whose pose is known, in order; drop those whose
-        pose will not come."""
+        """A pose came: process the waiting image sets whose pose is now known."""
         values = self.params.values
-        while self._waiting:
-            item = self._waiting[0]
-            pose = self.poses.at(item.stamp, item.header.frame_id, values['pose_tolerance'])
-            if isinstance(pose, PoseMiss):
-                newest = self._waiting[-1].stamp
-                waited = (newest - item.stamp) / NS_PER_S
-                if pose.reason == 'pose_pending' and waited <= values['pose_wait']:
-                    return  # its pose may still come
-                self._waiting.popleft()
-                reason = 'pose_timeout' if pose.reason == 'pose_pending' else pose.reason
-                self.drop(reason, f'image at {item.stamp / 1e9:.3f} s: {pose.detail}')
-                continue
-            self._waiting.popleft()
-            self._process(item, pose)
+        self.waiter.resolve(values['pose_tolerance'], values['pose_wait'])
 
     # ------------------------------------------------------------------ work
     def _process(self, item: _Waiting, body: Pose) -> None:
@@ -307,25 +291,19 @@ class MultiViewStereoNode(DepthNode):
     # ------------------------------------------------------------------ hooks
     def on_time_jump(self) -> None:
         """The stamps went back (a looping bag): start over."""
-        if self._waiting:
-            self.drop('time_jump', f'{len(self._waiting)} image(s) waiting for a pose were '
-                      'discarded when the stamps jumped back', count=len(self._waiting))
-        self._waiting.clear()
+        self.waiter.discard('time_jump', 'discarded when the stamps jumped back')
         self._headers.clear()
         self.stream.reset()
         self.poses.clear()
 
     def holds_input(self) -> bool:
         """Images wait for a pose, or for later images (``delay``)."""
-        return super().holds_input() or bool(self._waiting) or self.stream.waiting > 0
+        return super().holds_input() or bool(self.waiter) or self.stream.waiting > 0
 
     def finish_stream(self) -> None:
         """The stream ended: the delayed images get their depth from the later images there
         are; those still waiting for a pose are counted as ``stream_ended``."""
         super().finish_stream()
-        if self._waiting:
-            self.drop('stream_ended', f'{len(self._waiting)} image(s) still waiting for a '
-                      'pose when the stream ended', count=len(self._waiting))
-            self._waiting.clear()
+        self.waiter.discard('stream_ended', 'when the stream ended')
         for result in self.stream.flush():
             self._publish(result)

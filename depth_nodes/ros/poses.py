@@ -17,8 +17,10 @@ the image's stamp.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -38,7 +40,9 @@ try:  # a ROS install only (not on PyPI)
 except ImportError:
     TFMessage = None
 
-__all__ = ['POSE_SOURCES', 'PoseInput', 'pose_parameters']
+__all__ = ['POSE_SOURCES', 'PoseInput', 'PoseWaiter', 'pose_parameters']
+
+T = TypeVar('T')
 
 POSE_SOURCES = ('odometry', 'pose', 'tf', 'none')
 NS_PER_S = 1_000_000_000
@@ -191,3 +195,69 @@ class PoseInput:
                                     tolerance)
         body = self.history.at(stamp_ns, tolerance)
         return body if isinstance(body, PoseMiss) else body.compose(self.mount)
+
+
+@dataclass
+class _Waiting(Generic[T]):
+    stamp: int
+    frame_id: str
+    item: T
+
+
+class PoseWaiter(Generic[T]):
+    """Frames waiting for their pose, handed on in order once it is known.
+
+    A frame whose pose is still missing waits while the frames after it span at most
+    ``pose_wait`` seconds (by their stamps); then it is dropped as ``pose_timeout``, and a
+    frame whose pose will not come (``no_pose``, ``bad_pose``: see
+    :class:`~depth_nodes.core.mvs.poses.PoseMiss`) is dropped at once.
+
+    Args:
+        node: The node (a :class:`~depth_nodes.ros.node.DepthNode`): its drops.
+        poses: Its pose input.
+        process: Called with each frame's item and pose, in stamp order.
+    """
+
+    def __init__(self, node: Any, poses: PoseInput, process: Callable[[T, Pose], None]
+                 ) -> None:
+        self.node = node
+        self.poses = poses
+        self.process = process
+        self._waiting: deque[_Waiting[T]] = deque()
+
+    def __len__(self) -> int:
+        return len(self._waiting)
+
+    def add(self, stamp_ns: int, frame_id: str, item: T, tolerance_s: float,
+            wait_s: float) -> None:
+        """Queue a frame, then hand on every frame whose pose is known."""
+        self._waiting.append(_Waiting(stamp_ns, frame_id, item))
+        self.resolve(tolerance_s, wait_s)
+
+    def resolve(self, tolerance_s: float, wait_s: float) -> None:
+        """Hand on the waiting frames whose pose is known, in order; drop those whose pose
+        will not come."""
+        while self._waiting:
+            first = self._waiting[0]
+            pose = self.poses.at(first.stamp, first.frame_id, tolerance_s)
+            if isinstance(pose, PoseMiss):
+                waited = (self._waiting[-1].stamp - first.stamp) / NS_PER_S
+                if pose.reason == 'pose_pending' and waited <= wait_s:
+                    return  # its pose may still come
+                self._waiting.popleft()
+                reason = 'pose_timeout' if pose.reason == 'pose_pending' else pose.reason
+                self.node.drop(reason, f'frame at {first.stamp / 1e9:.3f} s: {pose.detail}')
+                continue
+            self._waiting.popleft()
+            self.process(first.item, pose)
+
+    def clear(self) -> None:
+        """Forget the waiting frames without counting them (nobody wants their output)."""
+        self._waiting.clear()
+
+    def discard(self, reason: str, why: str) -> None:
+        """Drop every waiting frame as ``reason`` (a time jump, the end of the stream)."""
+        if self._waiting:
+            self.node.drop(reason, f'{len(self._waiting)} frame(s) waiting for a pose {why}',
+                           count=len(self._waiting))
+        self._waiting.clear()
