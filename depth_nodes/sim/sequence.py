@@ -202,7 +202,7 @@ def _noisy(pose: Pose, rng: np.random.Generator, deg: float, metres: float) -> P
     return Pose(pose.rotation @ delta, pose.position + shift)
 
 
-def _pixel_rays(camera: Intrinsics, supersample: int) -> F64:
+def pixel_rays(camera: Intrinsics, supersample: int) -> F64:
     """(H * W * s * s, 3) camera-frame rays (z = 1) through the samples of every pixel,
     ordered (v, u, sub_v, sub_u)."""
     offs = (np.arange(supersample) + 0.5) / supersample - 0.5
@@ -218,7 +218,7 @@ def render_grey(scene: Scene, camera: Intrinsics, pose: Pose, config: SequenceCo
                 rng: np.random.Generator) -> NDArray[np.uint8]:
     """The grey image a camera at ``pose`` records (exposure, vignette, noise)."""
     s = config.supersample
-    dirs = _pixel_rays(camera, s) @ pose.rotation.T
+    dirs = pixel_rays(camera, s) @ pose.rotation.T
     rgb = scene.radiance(pose.position, dirs).reshape(camera.height, camera.width, s * s, 3)
     grey = rgb.mean(axis=2) @ _LUMA
     u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
@@ -234,7 +234,7 @@ def render_grey(scene: Scene, camera: Intrinsics, pose: Pose, config: SequenceCo
 
 def render_depth(scene: Scene, camera: Intrinsics, pose: Pose) -> NDArray[np.float32]:
     """Z at the pixel centres of a camera at ``pose`` (NaN where nothing is hit)."""
-    rays = _pixel_rays(camera, 1)
+    rays = pixel_rays(camera, 1)
     t, _ = scene.cast(pose.position, rays @ pose.rotation.T)  # rays have z = 1: t is Z
     depth: NDArray[np.float32] = np.where(np.isfinite(t), t, np.nan).reshape(
         camera.height, camera.width).astype(np.float32)
@@ -245,7 +245,7 @@ def visible_in(scene: Scene, depth: NDArray[np.float32], camera: Intrinsics, pos
                other_camera: Intrinsics, other_pose: Pose) -> NDArray[np.bool_]:
     """Which pixels of a view (its depth ``depth`` at ``pose``) another camera sees: inside
     its image and not hidden behind another surface."""
-    rays = _pixel_rays(camera, 1)
+    rays = pixel_rays(camera, 1)
     points = pose.position + (rays * depth.reshape(-1, 1).astype(np.float64)) @ pose.rotation.T
     local = (points - other_pose.position) @ other_pose.rotation
     with np.errstate(invalid='ignore', divide='ignore'):
