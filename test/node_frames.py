@@ -171,6 +171,10 @@ KINDS = {
         'image_rect': image(FRAME.left_rect_gt, 'mono8', t),
         'camera_info': info(FRAME.left_camera, t),
         'odom': odometry(t)}, '/depth'),
+    'posed_depth': Kind(lambda t, _: {
+        'image_rect': depth(t),
+        'camera_info': info(FRAME.left_camera, t),
+        'odom': odometry(t)}, '/filtered/image_rect'),
 }
 
 #: Parameters a node runs with here (ranges that fit 64 x 48 images, its optional inputs
@@ -189,6 +193,8 @@ PARAMETERS = {
     'multiview_stereo': [Parameter('planes', value=RANGE), Parameter('paths', value=5),
                          Parameter('threads', value=1), Parameter('min_depth', value=0.5),
                          Parameter('max_depth', value=10.0)],
+    'depth_filter': [Parameter('pose_source', value='odometry'),
+                     Parameter('noise_model', value='stereo'), Parameter('threads', value=1)],
 }
 
 

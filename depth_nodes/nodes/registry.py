@@ -39,6 +39,8 @@ INPUT_KINDS = {
     'depth_stereo': 'a left depth image + the right camera_info (the baseline)',
     'tof_correlation': 'a time-of-flight camera\'s raw correlation frame + camera_info',
     'posed_camera': 'one camera\'s rectified image + camera_info, and its poses (odometry)',
+    'posed_depth': 'a depth image (image_rect) + its camera_info, and the camera\'s poses '
+                   '(odometry) where a pose source is set',
 }
 
 
@@ -128,6 +130,10 @@ NODES = (
     NodeEntry('tof', 'depth_nodes.nodes.tof:ToFNode',
               'Time of flight: raw correlation frames -> depth, amplitude, confidence and '
               'points', 'tof_correlation', camera_reader=True),
+    NodeEntry('depth_filter', 'depth_nodes.nodes.depth_filter:DepthFilterNode',
+              'Depth filter: decimation, flying pixels, spatial and motion-compensated '
+              'temporal smoothing, hole filling of any depth camera\'s depth image',
+              'posed_depth'),
     NodeEntry('multiview_stereo', 'depth_nodes.nodes.multiview_stereo:MultiViewStereoNode',
               'Multi-view stereo: a moving camera\'s posed images (or a rig\'s) -> depth, '
               'sigma, confidence and points', 'posed_camera', camera_reader=True),
