@@ -58,6 +58,10 @@ setup(
         'dev': ['pytest', 'ruff', 'mypy', 'colcon-common-extensions', 'catkin_pkg'],
         # `depth-nodes process --ray`: bag archives on a Ray cluster (local or existing)
         'cluster': ['ray'],
+        # to compare depth_filter with librealsense's filters (tools/evaluation); no node
+        # needs it. libusb-package: pyrealsense2's native library needs libusb-1.0, which a
+        # machine without a RealSense has no reason to carry
+        'realsense': ['pyrealsense2', 'libusb-package'],
     },
     zip_safe=False,  # Fast DDS reads the profile from a real file
     maintainer='depth_nodes maintainers',

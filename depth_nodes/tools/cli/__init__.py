@@ -67,6 +67,8 @@ COMMANDS = (
             'evaluate_sl'),
     Command('eval-tof', "time-of-flight depth against the simulator's ground truth",
             'evaluate_tof'),
+    Command('eval-depth-filter', "the depth filter against the simulator's ground truth, "
+            "stage by stage beside librealsense's filters", 'evaluate_depth_filter'),
     Command('bench', 'speed figures beside OpenCV, measured in one run', 'bench'),
 )
 _BY_NAME = {command.name: command for command in COMMANDS}

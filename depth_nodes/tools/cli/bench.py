@@ -18,6 +18,7 @@ import cv2
 import numba
 
 from depth_nodes.errors import ConfigError
+from depth_nodes.tools.bench.depth_filter import bench_depth_filter
 from depth_nodes.tools.bench.live import WATCH, bench_live
 from depth_nodes.tools.bench.multiview import bench_multiview
 from depth_nodes.tools.bench.nodes import bench_cross_check, bench_point_cloud
@@ -131,6 +132,20 @@ def _tof(args: argparse.Namespace) -> str:
     return bench_tof(args.bag, repeats=args.frames, threads=args.threads).format()
 
 
+def _depth_filter_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--frames', type=int, default=20,
+                        help='timed frames (median); default 20')
+    parser.add_argument('--size', default='640x480', metavar='WxH',
+                        help='frame size of the simulated depth camera (default 640x480)')
+    parser.add_argument('--busy', type=int, default=0, metavar='N',
+                        help='also time with N busy-loop processes beside it (default 0)')
+
+
+def _depth_filter(args: argparse.Namespace) -> str:
+    return bench_depth_filter(size=frame_size(args.size), repeats=args.frames,
+                              busy=args.busy).format()
+
+
 def _graph_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--rate', type=float, default=10.0,
                         help='frames per second to publish (default 10)')
@@ -194,6 +209,9 @@ STAGES = {stage.name: stage for stage in (
           'OpenCV GrayCodePattern', _structured_light_arguments, _structured_light),
     Stage('tof', "the tof node and its decoding on a ToF bag's first frame",
           _tof_arguments, _tof),
+    Stage('depth_filter', "the depth filter's stages on one core, beside librealsense's "
+          'filters on the same frames', _depth_filter_arguments, _depth_filter,
+          in_process=False),
     Stage('soak', 'the stereo graph fed for --duration s at --rate, P2 changed every '
           '--tune-every s: losses, memory, parameter answers', _soak_arguments, _soak,
           in_process=False),

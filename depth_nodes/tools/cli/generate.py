@@ -1,5 +1,5 @@
-"""`depth-nodes generate`: synthetic bags with ground truth (stereo, structured light, ToF),
-and the hostile-input campaign."""
+"""`depth-nodes generate`: synthetic bags with ground truth (stereo, structured light, ToF,
+multi-view, depth cameras), and the hostile-input campaign."""
 
 from __future__ import annotations
 
@@ -14,9 +14,11 @@ from typing import Any, Generic, TypeVar
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.sim import StereoSimConfig
+from depth_nodes.sim.depth_sequence import DepthSequenceConfig
 from depth_nodes.sim.sequence import SequenceConfig
 from depth_nodes.sim.tof import ToFSimConfig
 from depth_nodes.tools import signals
+from depth_nodes.tools.bags import depth_filter as depth
 from depth_nodes.tools.bags import multiview as mvs
 from depth_nodes.tools.bags import structured_light as sl
 from depth_nodes.tools.bags import tof
@@ -135,9 +137,33 @@ MULTIVIEW = PresetKind[SequenceConfig](
                          if c.pose_noise_deg or c.pose_noise_m else '')),
     with_options=_sequence_options,
     bundled=mvs.BUNDLED)
+DEPTH = PresetKind[DepthSequenceConfig](
+    depth.PRESETS,
+    with_seed=lambda c, seed: dataclasses.replace(c, seed=seed),
+    with_frames=lambda c, frames: dataclasses.replace(c, n_frames=frames),
+    write=lambda path, c, overwrite: depth.write_depth_bag(path, c, overwrite=overwrite),
+    describe=lambda c: f'{c.width}x{c.height}, {c.kind}, {c.noise} noise, '
+                       f'{_frames(c.n_frames)}',
+    with_options=lambda c, args: _depth_options(c, args),
+    bundled=depth.BUNDLED)
+
+
+def _depth_options(config: DepthSequenceConfig, args: argparse.Namespace
+                   ) -> DepthSequenceConfig:
+    """``--size`` of a depth_* preset (``--pose-noise`` is the multi-view presets')."""
+    if args.pose_noise is not None:
+        raise ConfigError('--pose-noise applies to the multi-view presets (mvs_*), not to '
+                          'the depth_* ones')
+    if args.size is not None:
+        width, height = image_size(args.size)
+        config = dataclasses.replace(config, width=width, height=height)
+    return config
+
+
 #: Every preset by name.
 KINDS: dict[str, PresetKind[Any]] = {
-    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF, MULTIVIEW) for name in kind.presets}
+    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF, MULTIVIEW, DEPTH)
+    for name in kind.presets}
 #: The committed bags, in the order `--preset all` writes them.
 BUNDLED = [name for name, kind in KINDS.items()
            if kind.bundled is None or name in kind.bundled]
@@ -150,14 +176,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='stereo_vga, stereo_qvga_color, stereo_qvga_fisheye, '
                         'structured_light_vga, tof_vga, mvs_sideways, mvs_forward, mvs_orbit, '
                         'mvs_rig (a moving camera, or a rig of three, with poses and exact '
-                        'depth), all (the bundled seven: not mvs_forward, mvs_orbit), or '
-                        'bad_inputs (the hostile campaign, from --source)')
+                        'depth), depth_static, depth_moving_camera, depth_moving_object, '
+                        'depth_tof_static (a depth camera\'s depth images with exact depth, '
+                        'for depth_filter), all (the bundled eight: not mvs_forward, '
+                        'mvs_orbit and three of the depth_*), or bad_inputs (the hostile '
+                        'campaign, from --source)')
     parser.add_argument('--source', help='bad_inputs: stereo bag whose raw frames to use '
                         '(default: the bundled stereo_vga)')
     parser.add_argument('--seed', type=int, help='override the preset seed')
     parser.add_argument('--frames', type=int, help='override the number of frames')
     parser.add_argument('--size', metavar='WxH',
-                        help='mvs_*: the image size (default 320x240)')
+                        help='mvs_*, depth_*: the image size (default 320x240)')
     parser.add_argument('--pose-noise', type=float, nargs=2, metavar=('DEG', 'M'),
                         help='mvs_*: standard deviation of the poses the bag reports: '
                         'rotation in degrees, position in metres per axis (the images stay '

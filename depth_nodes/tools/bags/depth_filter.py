@@ -1,0 +1,139 @@
+"""Depth-camera bags for the depth filter: simulated sequences (depth_nodes.sim.depth_sequence)
+written as a depth camera driver publishes them, with the truth beside, and read back.
+
+Topics (namespace ``/camera``; one stamp per frame; the bag timestamp equals it):
+
+=============================  ===========================  =================================
+topic                          type                         content
+=============================  ===========================  =================================
+/camera/depth/image_rect_raw   sensor_msgs/Image 16UC1      measured Z, mm, 0 unknown
+/camera/depth/camera_info      sensor_msgs/CameraInfo       its pinhole camera
+/camera/odom                   nav_msgs/Odometry            the camera optical frame in
+                                                            ``world``
+/camera/depth_gt               sensor_msgs/Image 32FC1      exact Z, NaN where nothing is hit
+/camera/labels_gt              sensor_msgs/Image mono8      bits: 1 mixed pixel, 2 hole,
+                                                            4 moving object, 8 a pixel that
+                                                            sees two surfaces
+=============================  ===========================  =================================
+
+The simulator configuration is stored in the bag's metadata (``custom_data``, key
+:data:`CONFIG_KEY`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from depth_nodes.core.depth_image import from_metres
+from depth_nodes.errors import BagError, ConfigError
+from depth_nodes.ros.camera_info import model_to_camera_info
+from depth_nodes.ros.image import array_to_image
+from depth_nodes.sim.depth_sequence import (
+    DepthFrame,
+    DepthSequenceConfig,
+    simulate_depth_sequence,
+)
+from depth_nodes.tools.bags.io import BagReader, BagWriter
+from depth_nodes.tools.bags.multiview import camera_model, odometry_message
+from depth_nodes.tools.bags.structured_light import stamped_header
+from depth_nodes.tools.signals import stop_requested
+
+NAMESPACE = '/camera'
+FRAME_ID = 'camera_depth_optical_frame'
+CONFIG_KEY = 'depth_nodes.sim.depth_sequence'
+COMPRESSION_LEVEL = 19
+#: Bits of ``labels_gt``.
+MIXED, HOLE, MOVING, STRADDLING = 1, 2, 4, 8
+
+#: The presets (320 x 240, 30 frames/s, 12 frames: 0.4 s).
+PRESETS: dict[str, DepthSequenceConfig] = {
+    'depth_static': DepthSequenceConfig(kind='static', n_frames=12),
+    'depth_moving_camera': DepthSequenceConfig(kind='moving_camera', n_frames=12),
+    'depth_moving_object': DepthSequenceConfig(kind='moving_object', n_frames=12),
+    'depth_tof_static': DepthSequenceConfig(kind='static', n_frames=12, noise='tof',
+                                            left_band=0.0),
+}
+#: The preset committed in bags/.
+BUNDLED = ('depth_moving_camera',)
+
+
+def labels(frame: DepthFrame) -> np.ndarray:
+    """The ``labels_gt`` image of a frame."""
+    return (frame.mixed * MIXED | frame.holes * HOLE | frame.moving * MOVING |
+            frame.straddling * STRADDLING).astype(np.uint8)
+
+
+def frame_messages(frame: DepthFrame) -> list[tuple[str, Any]]:
+    """The (topic, message) pairs of one frame."""
+    h = stamped_header(frame.stamp_ns, FRAME_ID)
+    return [
+        (f'{NAMESPACE}/depth/image_rect_raw',
+         array_to_image(from_metres(frame.depth, '16UC1'), '16UC1', h)),
+        (f'{NAMESPACE}/depth/camera_info',
+         model_to_camera_info(camera_model(frame.camera, FRAME_ID), h)),
+        (f'{NAMESPACE}/odom', odometry_message(frame.pose, frame.stamp_ns, FRAME_ID)),
+        (f'{NAMESPACE}/depth_gt', array_to_image(frame.truth, '32FC1', h)),
+        (f'{NAMESPACE}/labels_gt', array_to_image(labels(frame), 'mono8', h)),
+    ]
+
+
+def write_depth_bag(path: str | Path, config: DepthSequenceConfig, *,
+                    overwrite: bool = False) -> int:
+    """Simulate ``config`` and write the bag at ``path``; returns the number of messages.
+
+    Raises:
+        ConfigError: An invalid configuration.
+        BagError: ``path`` exists and ``overwrite`` is False.
+    """
+    config.validate()
+    count = 0
+    with BagWriter(path, overwrite=overwrite, compression_level=COMPRESSION_LEVEL) as writer:
+        writer.set_custom_data(CONFIG_KEY, json.dumps(dataclasses.asdict(config)))
+        for frame in simulate_depth_sequence(config):
+            if stop_requested():  # SIGINT / SIGTERM: whole frames only
+                break
+            for topic, msg in frame_messages(frame):
+                writer.write(topic, msg, frame.stamp_ns)
+                count += 1
+    return count
+
+
+def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> DepthSequenceConfig:
+    """The simulator configuration a depth bag (or a bag processed from one) records.
+
+    Raises:
+        BagError: No such metadata, or it does not parse.
+    """
+    if CONFIG_KEY not in custom_data:
+        raise BagError(f'{path} is not a depth-filter bag (no {CONFIG_KEY} metadata: made by '
+                       'depth-nodes generate --preset depth_static (or another depth_*), '
+                       'then process)')
+    try:
+        return DepthSequenceConfig(**json.loads(custom_data[CONFIG_KEY])).validate()
+    except (ValueError, TypeError, ConfigError) as exc:
+        raise BagError(f'{path}: malformed {CONFIG_KEY} metadata: {exc}') from None
+
+
+def read_topics(path: str | Path, topics: list[str], *, optional: tuple[str, ...] = ()
+                ) -> tuple[DepthSequenceConfig, dict[str, dict[int, Any]]]:
+    """The simulator configuration of a depth bag (or of a bag processed from one) and the
+    messages, by stamp, of ``topics`` (those in ``optional`` may be missing).
+
+    Raises:
+        BagError: No bag, not a depth bag, or a topic missing.
+    """
+    with BagReader(Path(path)) as reader:
+        config = config_from_metadata(dict(reader.custom_data), path)
+        for topic in topics:
+            if topic not in optional:
+                reader.require(topic)
+        present = [t for t in topics if t in reader.topics]
+        found: dict[str, dict[int, Any]] = {t: {} for t in topics}
+        for m in reader.messages(present):
+            found[m.topic][m.timestamp] = m.deserialize()
+    return config, found
