@@ -85,7 +85,8 @@ MINIMAL = {'generate': ['out'], 'process': ['in', 'out'], 'convert': ['in', 'out
            'pipeline': [], 'play': ['bag'],
            'record': ['out', '--topics', '/a'], 'reindex': ['bag'], 'param': ['list'],
            'node': ['list'], 'topic': ['list'], 'diag': [], 'eval': ['bag'],
-           'eval-sl': ['bag'], 'eval-tof': ['bag'], 'bench': ['sgm']}
+           'eval-sl': ['bag'], 'eval-tof': ['bag'], 'eval-depth-filter': ['bag'],
+           'bench': ['sgm']}
 
 
 def test_the_full_parser_runs_each_command_with_its_module() -> None:
@@ -178,7 +179,8 @@ def test_bench_without_a_stage_names_them() -> None:
     with pytest.raises(ConfigError) as caught:
         bench_cli.run(_bench())
     assert str(caught.value) == ('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
-                                 'multiview, structured_light, tof, soak, live)')
+                                 'multiview, structured_light, tof, depth_filter, soak, '
+                                 'live)')
 
 
 def test_bench_live_passes_its_options_on(monkeypatch: pytest.MonkeyPatch,
