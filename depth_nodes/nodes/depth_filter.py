@@ -54,6 +54,7 @@ from depth_nodes.core.depth_filter import (
     FilterResult,
     stereo_sigma,
     tof_sigma,
+    warm_up,
 )
 from depth_nodes.core.depth_image import Intrinsics, from_metres
 from depth_nodes.core.mvs.geometry import Pose
@@ -148,6 +149,7 @@ class DepthFilterNode(DepthImageNode):
         self.params = NodeParameters(self, PARAMETERS, validated(_settings))
         values = self.params.values
         self.noise_model = values['noise_model']
+        warm_up()  # before subscribing: the first live frame then takes a frame's time
         self.filter = DepthFilter()
         self.poses = PoseInput(self, values, on_pose=self._resolve)
         self.waiter: PoseWaiter[_Frame] = PoseWaiter(self, self.poses, self._filter)

@@ -199,3 +199,19 @@ class DepthFilter:
         moved = warp_state(self.state, camera, rotation, translation, disparity,
                            spare=self._spare, zbuf=self._zbuf)
         self._spare, self.state = self.state, moved
+
+
+def warm_up() -> None:
+    """Run every kernel once on a small frame (all stages on, a camera that moves): numba
+    loads or compiles them now rather than on a live camera's first frame, which would
+    otherwise take about half a second while the frames after it overflow the input
+    queue."""
+    camera = Intrinsics(8.0, 8.0, 7.5, 5.5, 16, 12)
+    depth = np.full((12, 16), 2.0, np.float32)
+    depth[4:8, 6:10] = np.nan
+    params = DepthFilterParams(decimation=2, spatial_holes_fill=2,
+                               hole_filling='farthest_from_around')
+    filt = DepthFilter()
+    for step in range(2):
+        pose = Pose(np.eye(3), np.array([0.01 * step, 0.0, 0.0]))
+        filt.process(depth, camera, params, sigma=np.full_like(depth, 0.01), pose=pose)

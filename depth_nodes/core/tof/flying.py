@@ -138,11 +138,16 @@ def remove_flying_pixels(range_m: F32, absolute: float, jump: float = 0.0,
     """
     r = np.ascontiguousarray(range_m, np.float32)
     out = np.zeros(r.shape, np.bool_)
-    noise = np.zeros(r.shape, np.float32) if sigma is None else \
-        np.ascontiguousarray(np.nan_to_num(sigma, nan=0.0, posinf=0.0), np.float32)
     if absolute > 0 or jump > 0:
-        _flying_kernel(np.pad(r, PAD, constant_values=np.nan), np.pad(noise, PAD),
-                       float(absolute), float(jump), float(margin), bool(spikes), out)
+        h, w = r.shape
+        padded = np.full((h + 2 * PAD, w + 2 * PAD), np.nan, np.float32)
+        padded[PAD:-PAD, PAD:-PAD] = r
+        noise = np.zeros(padded.shape, np.float32)
+        if sigma is not None:  # unknown or infinite noise: none
+            s = np.asarray(sigma, np.float32)
+            noise[PAD:-PAD, PAD:-PAD] = np.where(np.isfinite(s), s, np.float32(0.0))
+        _flying_kernel(padded, noise, float(absolute), float(jump), float(margin),
+                       bool(spikes), out)
     return out
 
 

@@ -142,8 +142,10 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
             reader.close()
             raise BagError(f'--remap {source}: no such topic played from {path}')
     # Stopping is ours (tools/signals.py): rclpy's handler would shut the context down
-    # under a publish() in progress ("rcl_shutdown already called").
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    # under a publish() in progress ("rcl_shutdown already called"). No arguments: rcl
+    # would read --remap's FROM:=TO in the command line as ROS remappings of its own, with
+    # a deprecation warning for each.
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     # no parameter services: the loop below publishes and never spins them, so a
     # `param list` of the graph would wait for an answer that cannot come
     node = Node('depth_nodes_player', start_parameter_services=False)
@@ -381,7 +383,7 @@ def record_bag(path: str | Path, topics: Iterable[str], *, duration: float | Non
         raise ConfigError(f'--duration must be positive, got {duration}')
     if max_messages is not None and max_messages <= 0:
         raise ConfigError(f'--max-messages must be positive, got {max_messages}')
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # stopping is ours (play)
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)  # as play
     recorder = None
     try:
         recorder = Recorder(path, topics, overwrite=overwrite)
