@@ -170,7 +170,9 @@ class DepthFilterNode(DepthImageNode):
     # ------------------------------------------------------------------ inputs
     def on_frame(self, depth_msg: Any, info: CameraInfo, noise_msg: Any = None) -> None:
         """One depth image (with its camera_info, and its noise image if any)."""
-        outputs = (self.pub_depth, self.pub_info, self.pub_filled, self.pub_sigma)
+        outputs = [self.pub_depth, self.pub_info, self.pub_filled]
+        if self.noise_model != 'none':  # else it is never published: no reason to filter
+            outputs.append(self.pub_sigma)
         if self.skip_unwanted(*(out.wanted for out in outputs)):
             self.filter.reset()  # nobody listens: the temporal memory goes stale
             self.waiter.clear()

@@ -165,6 +165,20 @@ def test_a_new_size_starts_the_memory_over() -> None:
     assert '320x240 to 160x120' in result.reset
 
 
+def test_a_new_domain_starts_the_memory_over() -> None:
+    """The memory holds 1 / Z in the disparity domain: a filter switched to the depth
+    domain must not read it as Z (a missing pixel would keep 0.25 m for a 4 m wall)."""
+    filt = DepthFilter()
+    for frame in STILL.frames[:3]:  # a past long enough for persistence to keep pixels
+        filt.process(frame.depth, frame.camera, DepthFilterParams())
+    frame = STILL.frames[3]
+    result = filt.process(frame.depth, frame.camera, DepthFilterParams(filter_domain='depth'))
+    assert result.reset is not None
+    assert 'filter_domain' in result.reset
+    known = np.isfinite(result.depth)
+    assert np.nanmin(result.depth[known]) > 0.5  # no 1 / Z read as Z
+
+
 def test_bad_arguments_are_refused() -> None:
     frame = STILL.frames[0]
     with pytest.raises(ArgumentError, match='does not fit the camera'):

@@ -204,4 +204,9 @@ def test_only_the_wanted_outputs_are_published(context: Context, monkeypatch: An
     want_only(monkeypatch)
     node.on_frame(*_inputs(SEQ.frames[1]))
     assert node.filter.state is None  # nobody listens: the memory is forgotten
+    # without a noise model sigma is never published: wanting only it filters nothing
+    want_only(monkeypatch, '/filtered/sigma')
+    node.on_frame(*_inputs(SEQ.frames[2]))
+    assert node.outbox[-1][0] == '/filtered/filled'
+    assert node.accounting.skipped == 2
     node.destroy_node()

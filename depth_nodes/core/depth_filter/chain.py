@@ -79,6 +79,7 @@ class DepthFilter:
         self.state: TemporalState | None = None
         self.pose: Pose | None = None
         self._spare: TemporalState | None = None  # the state the warp writes next
+        self._disparity = True  # the domain of the memory's values
         self._zbuf: NDArray[np.float64] | None = None
 
     def reset(self) -> None:
@@ -172,6 +173,10 @@ class DepthFilter:
         """Bring the temporal memory onto this frame's grid; why it started over, if it
         did."""
         reset = None
+        if self.state is not None and disparity != self._disparity:
+            reset = 'filter_domain changed: the memory holds values of the other domain'
+            self.state = None
+        self._disparity = disparity
         if self.state is not None and (self.state.camera.width, self.state.camera.height) != \
                 (camera.width, camera.height):
             reset = (f'the frame size changed from {self.state.camera.width}x'
