@@ -102,14 +102,16 @@ def _frames(width: int, height: int) -> list[DepthFrame]:
 def _chain(frames: list[DepthFrame], repeats: int, decimation: int) -> ChainTimes:
     params = DepthFilterParams(decimation=decimation, hole_filling='farthest_from_around')
     camera = frames[0].camera
+    sim = DepthSequenceConfig()  # the noise the frames were made with
     theirs_settings = rs.RealsenseSettings(decimation=decimation, spatial=True, temporal=True,
                                            disparity=True, hole_filling=1)
     rs_camera = rs.Camera(camera.width, camera.height, camera.fx, camera.fy, camera.cx,
-                          camera.cy, DepthSequenceConfig().baseline_m)
+                          camera.cy, sim.baseline_m)
     filt = DepthFilter()
     ours: dict[str, list[float]] = {}
     theirs: dict[str, list[float]] = {}
-    sigmas = [stereo_sigma(f.depth, f.camera.fx, 0.08, 0.1) for f in frames]
+    sigmas = [stereo_sigma(f.depth, f.camera.fx, sim.baseline_m, sim.disparity_sigma)
+              for f in frames]
     with rs.RealsenseChain(theirs_settings, rs_camera) as chain:
         for k in range(repeats + 2):  # two rounds of warm-up (compilation, memory)
             frame = frames[k % len(frames)]
