@@ -33,6 +33,10 @@ from depth_nodes.sim.depth_sequence import DepthSequenceConfig, simulate_depth_s
 from depth_nodes.tools.bags.depth_filter import labels
 from depth_nodes.tools.evaluation.depth_filter import Scores, Version, flat_surfaces, score
 
+# simulated 320x240 sequences (about 10 s): the full suite's; the kernels' and the node's
+# tests (test_depth_filter_kernels.py, test/nodes) are the fast tier's
+pytestmark = pytest.mark.slow
+
 SKIP = 3
 PERSISTENCE = 3
 
