@@ -43,7 +43,8 @@ from depth_nodes.errors import ConfigError
 from depth_nodes.sim.layout import build_scene
 from depth_nodes.sim.sequence import pixel_rays
 
-__all__ = ['KINDS', 'DepthFrame', 'DepthSequenceConfig', 'simulate_depth_sequence']
+__all__ = ['HOLE', 'KINDS', 'MIXED', 'MOVING', 'STRADDLING', 'DepthFrame',
+           'DepthSequenceConfig', 'labels', 'simulate_depth_sequence']
 
 F32 = NDArray[np.float32]
 B = NDArray[np.bool_]
@@ -53,6 +54,8 @@ NOISES = ('stereo', 'tof')
 MIXED_GAP_M = 0.1
 #: ... and in standard deviations of the far surface's noise.
 MIXED_GAP_SIGMAS = 6.0
+#: Bits of :func:`labels`.
+MIXED, HOLE, MOVING, STRADDLING = 1, 2, 4, 8
 
 
 @dataclass(frozen=True)
@@ -161,6 +164,15 @@ class DepthFrame:
     moving: B
     pose: Pose
     camera: Intrinsics
+
+
+def labels(frame: DepthFrame) -> NDArray[np.uint8]:
+    """A frame's truth as one image of bits: :data:`MIXED`, :data:`HOLE`, :data:`MOVING`,
+    :data:`STRADDLING`."""
+    out: NDArray[np.uint8] = (frame.mixed * MIXED | frame.holes * HOLE |
+                              frame.moving * MOVING | frame.straddling * STRADDLING
+                              ).astype(np.uint8)
+    return out
 
 
 def _pose(config: DepthSequenceConfig, index: int) -> Pose:

@@ -29,8 +29,7 @@ from depth_nodes.core.depth_filter import (
     stereo_sigma,
 )
 from depth_nodes.errors import ArgumentError
-from depth_nodes.sim.depth_sequence import DepthSequenceConfig, simulate_depth_sequence
-from depth_nodes.tools.bags.depth_filter import labels
+from depth_nodes.sim.depth_sequence import DepthSequenceConfig, labels, simulate_depth_sequence
 from depth_nodes.tools.evaluation.depth_filter import Scores, Version, flat_surfaces, score
 
 # simulated 320x240 sequences (about 10 s): the full suite's; the kernels' and the node's

@@ -32,8 +32,9 @@ def stereo_sigma(depth: F32, focal_px: float, baseline_m: float, disparity_sigma
         raise ArgumentError(f'stereo noise needs a positive focal length and baseline, got '
                             f'{focal_px} px and {baseline_m} m')
     z = np.asarray(depth, np.float32)
-    out: F32 = (z * z * np.float32(disparity_sigma / (focal_px * baseline_m))).astype(
-        np.float32)
+    with np.errstate(over='ignore'):  # a depth beyond 1e19 m: an infinite sigma
+        out: F32 = (z * z * np.float32(disparity_sigma / (focal_px * baseline_m))).astype(
+            np.float32)
     return out
 
 

@@ -11,7 +11,8 @@ topic                          type                         content
 /camera/odom                   nav_msgs/Odometry            the camera optical frame in
                                                             ``world``
 /camera/depth_gt               sensor_msgs/Image 32FC1      exact Z, NaN where nothing is hit
-/camera/labels_gt              sensor_msgs/Image mono8      bits: 1 mixed pixel, 2 hole,
+/camera/labels_gt              sensor_msgs/Image mono8      bits (sim.depth_sequence.labels):
+                                                            1 mixed pixel, 2 hole,
                                                             4 moving object, 8 a pixel that
                                                             sees two surfaces
 =============================  ===========================  =================================
@@ -27,15 +28,15 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from depth_nodes.core.depth_image import from_metres
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim.depth_sequence import (
+    STRADDLING,
     DepthFrame,
     DepthSequenceConfig,
+    labels,
     simulate_depth_sequence,
 )
 from depth_nodes.tools.bags.io import BagReader, BagWriter
@@ -47,8 +48,8 @@ NAMESPACE = '/camera'
 FRAME_ID = 'camera_depth_optical_frame'
 CONFIG_KEY = 'depth_nodes.sim.depth_sequence'
 COMPRESSION_LEVEL = 19
-#: Bits of ``labels_gt``.
-MIXED, HOLE, MOVING, STRADDLING = 1, 2, 4, 8
+__all__ = ['BUNDLED', 'PRESETS', 'STRADDLING', 'config_from_metadata', 'frame_messages',
+           'labels', 'read_topics', 'write_depth_bag']
 
 #: The presets (320 x 240, 30 frames/s, 12 frames: 0.4 s).
 PRESETS: dict[str, DepthSequenceConfig] = {
@@ -60,12 +61,6 @@ PRESETS: dict[str, DepthSequenceConfig] = {
 }
 #: The preset committed in bags/.
 BUNDLED = ('depth_moving_camera',)
-
-
-def labels(frame: DepthFrame) -> np.ndarray:
-    """The ``labels_gt`` image of a frame."""
-    return (frame.mixed * MIXED | frame.holes * HOLE | frame.moving * MOVING |
-            frame.straddling * STRADDLING).astype(np.uint8)
 
 
 def frame_messages(frame: DepthFrame) -> list[tuple[str, Any]]:
