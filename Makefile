@@ -31,7 +31,7 @@ unit: venv
 
 test: lint typecheck unit
 
-# The fast tier, for every edit: ruff and the tests not marked slow (about two minutes on
+# The fast tier, for every edit: ruff and the tests not marked slow (two to three minutes on
 # two cores). `make test` is the whole suite, and what CI runs.
 check: venv
 	$(BIN)/ruff check .
