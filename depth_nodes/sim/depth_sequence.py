@@ -214,6 +214,10 @@ def _simulate(config: DepthSequenceConfig) -> Iterator[DepthFrame]:
     rays = pixel_rays(camera, s)
     centre_rays = pixel_rays(camera, 1)
     still = build_scene(config.seed, 0, camera.fx, camera.width, camera.height)
+    later = build_scene(config.seed, 1, camera.fx, camera.width, camera.height)
+    # the primitives that move from frame to frame
+    movers = np.array([not np.array_equal(a.centre, b.centre)
+                       for a, b in zip(still.primitives, later.primitives, strict=True)])
     shape = (camera.height, camera.width)
     for index in range(config.n_frames):
         scene = build_scene(config.seed, index, camera.fx, camera.width, camera.height) \
@@ -221,7 +225,7 @@ def _simulate(config: DepthSequenceConfig) -> Iterator[DepthFrame]:
         pose = _pose(config, index)
         t, _ = scene.cast(pose.position, rays @ pose.rotation.T)
         sub = np.where(np.isfinite(t), t, np.nan).reshape(*shape, s * s)
-        t0, _ = scene.cast(pose.position, centre_rays @ pose.rotation.T)
+        t0, hit = scene.cast(pose.position, centre_rays @ pose.rotation.T)
         truth = np.where(np.isfinite(t0), t0, np.nan).reshape(shape).astype(np.float32)
         with np.errstate(invalid='ignore'), warnings.catch_warnings():
             warnings.simplefilter('ignore', RuntimeWarning)  # all-NaN pixels: the sky
@@ -238,11 +242,10 @@ def _simulate(config: DepthSequenceConfig) -> Iterator[DepthFrame]:
         holes = _holes(config, rng) | ~np.isfinite(depth)
         depth[holes] = np.nan
         moving = np.zeros(shape, bool)
-        if config.kind == 'moving_object':
-            t_still, _ = still.cast(pose.position, centre_rays @ pose.rotation.T)
-            with np.errstate(invalid='ignore'):
-                moving = ~np.isclose(t_still.reshape(shape), t0.reshape(shape), rtol=1e-4)
-            moving &= np.isfinite(truth)
+        if config.kind == 'moving_object':  # the centre ray hits a primitive that moves
+            hit = hit.reshape(shape)
+            seen = hit >= 0
+            moving[seen] = movers[hit[seen]]
         stamp = config.start_stamp_ns + round(index * 1e9 / config.frame_rate_hz)
         yield DepthFrame(index, stamp, depth.astype(np.float32), truth, mixed & ~holes,
                          straddling & ~holes, holes, moving, pose, camera)
