@@ -174,6 +174,7 @@ KINDS = {
     'posed_depth': Kind(lambda t, _: {
         'image_rect': depth(t),
         'camera_info': info(FRAME.left_camera, t),
+        'confidence': image(np.full((H, W), 0.8, np.float32), '32FC1', t),
         'odom': odometry(t)}, '/filtered/image_rect'),
 }
 
@@ -193,8 +194,9 @@ PARAMETERS = {
     'multiview_stereo': [Parameter('planes', value=RANGE), Parameter('paths', value=5),
                          Parameter('threads', value=1), Parameter('min_depth', value=0.5),
                          Parameter('max_depth', value=10.0)],
+    # its optional noise input too: the tof node's confidence
     'depth_filter': [Parameter('pose_source', value='odometry'),
-                     Parameter('noise_model', value='stereo'), Parameter('threads', value=1)],
+                     Parameter('noise_model', value='tof'), Parameter('threads', value=1)],
 }
 
 

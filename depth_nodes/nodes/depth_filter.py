@@ -58,12 +58,10 @@ from depth_nodes.core.depth_filter import (
 )
 from depth_nodes.core.depth_image import Intrinsics, from_metres
 from depth_nodes.core.mvs.geometry import Pose
-from depth_nodes.errors import MessageError
 from depth_nodes.nodes.depth_common import QUEUE_SIZE, DepthImageNode, depth_transport
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.params import THREADS, NodeParameters, ParamSpec, one_of, specs_from, validated
 from depth_nodes.ros.poses import PoseInput, PoseWaiter, pose_parameters
-from depth_nodes.ros.transport import decode_image
 from depth_nodes.ros.workers import use_threads
 
 SETTINGS = tuple(f.name for f in fields(DepthFilterParams))
@@ -212,19 +210,10 @@ class DepthFilterNode(DepthImageNode):
             return stereo_sigma(depth, camera.fx, values['stereo_baseline'],
                                 values['disparity_sigma'])
         what = 'sigma' if self.noise_model == 'sigma' else 'confidence'
-        if noise_msg.encoding != '32FC1':
-            self.drop('unsupported_encoding', f'{what} encoding {noise_msg.encoding!r} is not '
-                      '32FC1')
+        read = self.frame_image(noise_msg, what, depth.shape, ('32FC1',))
+        if read is None:
             return False
-        try:
-            pixels, _ = decode_image(noise_msg)
-        except MessageError as exc:
-            self.decoding_failed(exc, what)
-            return False
-        if pixels.shape != depth.shape:
-            self.drop('size_mismatch', f'{what} is {pixels.shape[1]}x{pixels.shape[0]} but '
-                      f'the depth image is {depth.shape[1]}x{depth.shape[0]}')
-            return False
+        pixels = read[0]
         if self.noise_model == 'sigma':
             with np.errstate(invalid='ignore'):
                 return np.where(pixels >= 0, pixels, np.nan).astype(np.float32)

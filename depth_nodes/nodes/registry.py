@@ -39,8 +39,8 @@ INPUT_KINDS = {
     'depth_stereo': 'a left depth image + the right camera_info (the baseline)',
     'tof_correlation': 'a time-of-flight camera\'s raw correlation frame + camera_info',
     'posed_camera': 'one camera\'s rectified image + camera_info, and its poses (odometry)',
-    'posed_depth': 'a depth image (image_rect) + its camera_info, and the camera\'s poses '
-                   '(odometry) where a pose source is set',
+    'posed_depth': 'a depth image (image_rect) + its camera_info (+ a confidence or sigma '
+                   'image), and the camera\'s poses (odometry) where a pose source is set',
 }
 
 

@@ -23,13 +23,10 @@ The simulator configuration is stored in the bag's metadata (``custom_data``, ke
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
 from depth_nodes.core.depth_image import from_metres
-from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim.depth_sequence import (
@@ -39,15 +36,13 @@ from depth_nodes.sim.depth_sequence import (
     labels,
     simulate_depth_sequence,
 )
-from depth_nodes.tools.bags.io import BagReader, BagWriter
 from depth_nodes.tools.bags.multiview import camera_model, odometry_message
+from depth_nodes.tools.bags.simulated import SimulatedBag
 from depth_nodes.tools.bags.structured_light import stamped_header
-from depth_nodes.tools.signals import stop_requested
 
 NAMESPACE = '/camera'
 FRAME_ID = 'camera_depth_optical_frame'
 CONFIG_KEY = 'depth_nodes.sim.depth_sequence'
-COMPRESSION_LEVEL = 19
 __all__ = ['BUNDLED', 'PRESETS', 'STRADDLING', 'config_from_metadata', 'frame_messages',
            'labels', 'read_topics', 'write_depth_bag']
 
@@ -77,6 +72,11 @@ def frame_messages(frame: DepthFrame) -> list[tuple[str, Any]]:
     ]
 
 
+BAG: SimulatedBag[DepthSequenceConfig] = SimulatedBag(
+    CONFIG_KEY, 'a depth-filter bag', 'depth-nodes generate --preset depth_static (or '
+    'another depth_*)', lambda doc: DepthSequenceConfig(**doc).validate())
+
+
 def write_depth_bag(path: str | Path, config: DepthSequenceConfig, *,
                     overwrite: bool = False) -> int:
     """Simulate ``config`` and write the bag at ``path``; returns the number of messages.
@@ -86,16 +86,9 @@ def write_depth_bag(path: str | Path, config: DepthSequenceConfig, *,
         BagError: ``path`` exists and ``overwrite`` is False.
     """
     config.validate()
-    count = 0
-    with BagWriter(path, overwrite=overwrite, compression_level=COMPRESSION_LEVEL) as writer:
-        writer.set_custom_data(CONFIG_KEY, json.dumps(dataclasses.asdict(config)))
-        for frame in simulate_depth_sequence(config):
-            if stop_requested():  # SIGINT / SIGTERM: whole frames only
-                break
-            for topic, msg in frame_messages(frame):
-                writer.write(topic, msg, frame.stamp_ns)
-                count += 1
-    return count
+    frames = ((frame.stamp_ns, frame_messages(frame))
+              for frame in simulate_depth_sequence(config))
+    return BAG.write(path, config, frames, overwrite=overwrite)
 
 
 def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> DepthSequenceConfig:
@@ -104,14 +97,7 @@ def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> Depth
     Raises:
         BagError: No such metadata, or it does not parse.
     """
-    if CONFIG_KEY not in custom_data:
-        raise BagError(f'{path} is not a depth-filter bag (no {CONFIG_KEY} metadata: made by '
-                       'depth-nodes generate --preset depth_static (or another depth_*), '
-                       'then process)')
-    try:
-        return DepthSequenceConfig(**json.loads(custom_data[CONFIG_KEY])).validate()
-    except (ValueError, TypeError, ConfigError) as exc:
-        raise BagError(f'{path}: malformed {CONFIG_KEY} metadata: {exc}') from None
+    return BAG.config(custom_data, path)
 
 
 def read_topics(path: str | Path, topics: list[str], *, optional: tuple[str, ...] = ()
@@ -122,13 +108,4 @@ def read_topics(path: str | Path, topics: list[str], *, optional: tuple[str, ...
     Raises:
         BagError: No bag, not a depth bag, or a topic missing.
     """
-    with BagReader(Path(path)) as reader:
-        config = config_from_metadata(dict(reader.custom_data), path)
-        for topic in topics:
-            if topic not in optional:
-                reader.require(topic)
-        present = [t for t in topics if t in reader.topics]
-        found: dict[str, dict[int, Any]] = {t: {} for t in topics}
-        for m in reader.messages(present):
-            found[m.topic][m.timestamp] = m.deserialize()
-    return config, found
+    return BAG.read(path, topics, optional=optional)

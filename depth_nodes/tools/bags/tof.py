@@ -24,24 +24,19 @@ The simulator configuration is stored in the bag's metadata (``custom_data``, ke
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from std_msgs.msg import Header
 
-from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim.tof import ToFFrame, ToFSimConfig, simulate_tof
-from depth_nodes.tools.bags.io import BagReader, BagWriter
-from depth_nodes.tools.signals import stop_requested
+from depth_nodes.tools.bags.simulated import SimulatedBag
 
 NAMESPACE = '/tof'
 CONFIG_KEY = 'depth_nodes.sim.tof'
-COMPRESSION_LEVEL = 19
 
 #: The committed bag.
 PRESETS: dict[str, ToFSimConfig] = {'tof_vga': ToFSimConfig()}
@@ -70,6 +65,16 @@ def frame_messages(frame: ToFFrame) -> list[tuple[str, Any]]:
     ]
 
 
+def _parse(doc: dict[str, Any]) -> ToFSimConfig:
+    for key in ('distortion', 'frequencies_mhz'):
+        doc[key] = tuple(doc[key])
+    return ToFSimConfig(**doc).validate()
+
+
+BAG: SimulatedBag[ToFSimConfig] = SimulatedBag(
+    CONFIG_KEY, 'a time-of-flight bag', 'depth-nodes generate --preset tof_vga', _parse)
+
+
 def write_tof_bag(path: str | Path, config: ToFSimConfig, *, overwrite: bool = False) -> int:
     """Simulate ``config`` and write the bag at ``path``; returns the number of messages.
 
@@ -78,16 +83,8 @@ def write_tof_bag(path: str | Path, config: ToFSimConfig, *, overwrite: bool = F
         BagError: ``path`` exists and ``overwrite`` is False.
     """
     config.validate()
-    count = 0
-    with BagWriter(path, overwrite=overwrite, compression_level=COMPRESSION_LEVEL) as writer:
-        writer.set_custom_data(CONFIG_KEY, json.dumps(dataclasses.asdict(config)))
-        for frame in simulate_tof(config):
-            if stop_requested():  # SIGINT / SIGTERM: whole frames only
-                break
-            for topic, msg in frame_messages(frame):
-                writer.write(topic, msg, frame.stamp_ns)
-                count += 1
-    return count
+    frames = ((frame.stamp_ns, frame_messages(frame)) for frame in simulate_tof(config))
+    return BAG.write(path, config, frames, overwrite=overwrite)
 
 
 def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> ToFSimConfig:
@@ -96,16 +93,7 @@ def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> ToFSi
     Raises:
         BagError: No such metadata, or it does not parse.
     """
-    if CONFIG_KEY not in custom_data:
-        raise BagError(f'{path} is not a time-of-flight bag (no {CONFIG_KEY} metadata: '
-                       'made by depth-nodes generate --preset tof_vga, then process)')
-    try:
-        doc = json.loads(custom_data[CONFIG_KEY])
-        for key in ('distortion', 'frequencies_mhz'):
-            doc[key] = tuple(doc[key])
-        return ToFSimConfig(**doc).validate()
-    except (ValueError, TypeError, KeyError, ConfigError) as exc:
-        raise BagError(f'{path}: malformed {CONFIG_KEY} metadata: {exc}') from None
+    return BAG.config(custom_data, path)
 
 
 def read_topics(path: str | Path, topics: list[str]) -> tuple[ToFSimConfig,
@@ -116,11 +104,4 @@ def read_topics(path: str | Path, topics: list[str]) -> tuple[ToFSimConfig,
     Raises:
         BagError: No bag, not a ToF bag, or a topic missing.
     """
-    with BagReader(Path(path)) as reader:
-        config = config_from_metadata(dict(reader.custom_data), path)
-        for topic in topics:
-            reader.require(topic)
-        found: dict[str, dict[int, Any]] = {t: {} for t in topics}
-        for m in reader.messages(topics):
-            found[m.topic][m.timestamp] = m.deserialize()
-    return config, found
+    return BAG.read(path, topics)
