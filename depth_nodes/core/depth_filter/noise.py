@@ -52,7 +52,7 @@ def tof_sigma(depth: F32, confidence: F32, noise_reference: float) -> F32:
                             f'{z.shape[1::-1]}')
     if not noise_reference > 0:
         raise ArgumentError(f'noise_reference must be positive, got {noise_reference}')
-    with np.errstate(divide='ignore', invalid='ignore'):
+    with np.errstate(divide='ignore', invalid='ignore', over='ignore'):  # c of 1e-40
         ok = (c > 0) & (c <= 1)
         out = np.where(ok, noise_reference * z * np.sqrt(np.maximum(1.0 / c - 1.0, 0.0)),
                        np.nan)
