@@ -4,7 +4,8 @@
 right-view disparity and a cost-ratio map; see :mod:`depth_nodes.core.sgm.matcher`.
 
 The modules, by job: ``params`` (the settings), ``census`` and ``brightness`` and
-``cost`` (the matching costs), ``border`` (the cells whose match lies outside the right
+``cost`` (the matching costs), ``learned_cost`` (the learned features' cost,
+``matching_cost: learned``), ``border`` (the cells whose match lies outside the right
 image), ``aggregate`` (the path recurrence), ``select`` (the paths fused with the
 selection), ``check`` (the left-right rule), ``bands`` (bands of rows and the task
 runner), ``workspace`` (the buffers kept between frames), ``schedule`` (a frame's tasks),

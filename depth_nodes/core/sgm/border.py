@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from depth_nodes.core.sgm.cost import CostInputs
+from depth_nodes.core.sgm.cost import StereoCostRows
 from depth_nodes.errors import ArgumentError
 
 U8 = NDArray[np.uint8]
@@ -58,7 +58,7 @@ def mean_best_cost(cost: U8, min_disparity: int, *, row_step: int = 4) -> float:
     return float(total / max(1, rows * (x_hi - x_lo)))
 
 
-def sampled_best_cost_sum(inputs: CostInputs, ys: range, buffer: U8) -> float:
+def sampled_best_cost_sum(inputs: StereoCostRows, ys: range, buffer: U8) -> float:
     """:func:`mean_best_cost`'s sum over the rows ``ys`` (before dividing), their costs
     computed ``len(buffer)`` rows at a time into ``buffer``: the whole volume is never
     needed. Exact (integer sums in float64), so the mean equals mean_best_cost's."""

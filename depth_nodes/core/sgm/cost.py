@@ -249,6 +249,13 @@ class CostRows(Protocol):
         ...  # pragma: no cover (a protocol)
 
 
+class StereoCostRows(CostRows, Protocol):
+    """A stereo pair's costs (census or learned): rows whose disparity index ``k`` is
+    ``min_disparity + k``, so the border statistic knows which cells are inside."""
+
+    min_disparity: int
+
+
 @dataclass(frozen=True)
 class CostInputs:
     """Everything the cost of any row needs, prepared once per frame (census images,

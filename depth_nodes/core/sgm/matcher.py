@@ -23,11 +23,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.cross_check import remove_speckles
+from depth_nodes.core.learned.network import FeatureExtractor, FeatureNet
 from depth_nodes.core.sgm import ranged
 from depth_nodes.core.sgm.bands import Band, run_tasks
 from depth_nodes.core.sgm.check import check_disparity
 from depth_nodes.core.sgm.coarse import CoarseSearch
 from depth_nodes.core.sgm.cost import CostInputs, CostRows, cost_inputs
+from depth_nodes.core.sgm.learned_cost import LearnedCosts, learned_costs
 from depth_nodes.core.sgm.params import SgmParams
 from depth_nodes.core.sgm.schedule import FullFrame, RangedFrame
 from depth_nodes.core.sgm.workspace import (
@@ -85,6 +87,7 @@ class SgmMatcher:
         self.fallbacks = 0
         self.search_cells = 1.0
         self._kept_total = False
+        self._net: FeatureExtractor | None = None
 
     @property
     def allocations(self) -> int:
@@ -141,7 +144,7 @@ class SgmMatcher:
             self.fallbacks += 1
             self.search_cells = 1.0
         ws = self.workspaces.for_full(p, h, w, threads)
-        inputs = _cost_inputs(left, right, p, ws.frame.census)
+        inputs = self._frame_costs(left, right, p, ws.frame.census)
         total = self.workspaces.total_volume(h, w, p.disparity_range) if keep_total else \
             self.workspaces.total
         self._kept_total = keep_total
@@ -218,6 +221,19 @@ class SgmMatcher:
         run_tasks(frame.tasks(), threads)
         self.border_cost = frame.border_cost
         return ws
+
+    def _frame_costs(self, left: NDArray[Any], right: NDArray[Any], p: SgmParams,
+                     census: tuple[Any, Any]) -> CostInputs | LearnedCosts:
+        """The frame's costs for ``matching_cost``: census (+ intensity), the learned
+        features' or both (the network is read on first use)."""
+        if p.matching_cost == 'census':
+            return _cost_inputs(left, right, p, census)
+        if self._net is None:
+            self._net = FeatureExtractor(FeatureNet.load())
+        both = _cost_inputs(left, right, p, census) if p.matching_cost == 'census+learned' \
+            else None
+        return learned_costs(self._net, left, right, min_disparity=p.min_disparity,
+                             weight=p.learned_weight, census=both)
 
     @property
     def total(self) -> NDArray[np.uint16]:

@@ -19,6 +19,9 @@ from depth_nodes.errors import ArgumentError
 #: disparity_search: every disparity, or windows from a half-resolution pass
 #: (``coarse.py``, ``ranged.py``).
 SEARCH_MODES = ('full', 'coarse')
+#: matching_cost: census (+ intensity), the learned features' cost (``learned_cost.py``), or
+#: their sum.
+MATCHING_COSTS = ('census', 'learned', 'census+learned')
 #: How a settings error names the matcher.
 LABEL = 'SGM parameter'
 #: The largest P2 (with 4 paths; fewer with more: the 16-bit sum of the paths).
@@ -43,6 +46,12 @@ class SgmParams:
                                  low=-2048, high=2048)
     disparity_range: int = setting(128, 'Number of disparities searched (any number)',
                                    low=1, high=4096)
+    matching_cost: str = setting('census', 'census (census + intensity, below), learned '
+                                 "(1 - cosine of the shipped feature network's features) "
+                                 'or census+learned (their sum)', choices=MATCHING_COSTS)
+    learned_weight: int = setting(20, 'cost of two orthogonal learned feature vectors '
+                                  '(matching_cost learned or census+learned)', low=1,
+                                  high=127)
     census_width: int = setting(5, 'census window width (odd)', low=3, high=9, odd=True)
     census_height: int = setting(5, 'census window height (odd; width x height - 1 <= 63)',
                                  low=3, high=9, odd=True)
@@ -121,6 +130,9 @@ class SgmParams:
                       'more than 63 neighbours (use at most 9x7)')
         if self.census_weight == 0 and self.intensity_weight == 0:
             raise bad('census_weight', 'census_weight and intensity_weight cannot both be 0')
+        if self.matching_cost != 'census' and self.disparity_search == 'coarse':
+            raise bad('disparity_search', f'coarse needs matching_cost census (not '
+                      f'{self.matching_cost})')
         if self.uniqueness_ratio == 100:
             raise bad('uniqueness_ratio', 'must be below 100')
         if self.P2 < self.P1:

@@ -32,6 +32,7 @@ from depth_nodes.core.sgm.border import (
     sampled_best_cost_sum,
 )
 from depth_nodes.core.sgm.cost import CostInputs, CostRows
+from depth_nodes.core.sgm.learned_cost import LearnedCosts
 from depth_nodes.core.sgm.params import SgmParams
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, band_select
 from depth_nodes.core.sgm.workspace import FullWorkspace, RangedWorkspace
@@ -184,8 +185,8 @@ class FullFrame:
 
     def _sample(self, part: int, ys: range) -> Run:
         def run(worker: int) -> None:
-            # border_cost > 0 (the only case that samples) is a stereo pair's CostInputs
-            assert isinstance(self.inputs, CostInputs)
+            # border_cost > 0 (the only case that samples) is a stereo pair's costs
+            assert isinstance(self.inputs, (CostInputs, LearnedCosts))
             self.samples[part] = sampled_best_cost_sum(self.inputs, ys,
                                                        self.ws.workers[worker].sample)
         return run

@@ -1,0 +1,10 @@
+"""Learned parts of the stereo graph, run with numpy, OpenCV's dnn module and numba:
+
+* ``network.py``: the matching cost's feature network (weights, normalisation, forward
+  pass on OpenCV's dnn, a plain numpy reference);
+* ``onnx.py``: that network as an ONNX model, written without the ``onnx`` package;
+* ``confidence.py``: the learned confidence over cross_check's per-pixel signals.
+
+The cost volume itself is ``core/sgm/learned_cost.py``; the training is
+``depth_nodes.tools.train`` (JAX, the ``train`` extra); the weights ship in ``weights/``.
+"""

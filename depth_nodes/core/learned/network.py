@@ -1,0 +1,194 @@
+"""The learned matching cost's feature network: its weights, its input normalisation and
+its forward pass with numpy (no training dependency).
+
+The network maps a grey image to one unit vector of ``channels`` features per pixel:
+
+* the image is normalised locally (:func:`normalise`): minus the mean of a
+  ``window`` x ``window`` box, over that box's standard deviation, so a gain or an offset
+  between the cameras, or vignetting, changes nothing (census is invariant the same way);
+* ``layers`` 3x3 convolutions (zero padding at the image border), a ReLU after each but
+  the last; the receptive field is (2 layers + 1) square;
+* each pixel's features divided by their norm, so the cost of a match is
+  ``1 - cosine`` (``cost.py``).
+
+The training (``depth_nodes.tools.train``) evaluates the same network on patches with
+JAX; ``test/core/learned`` compares the two. :class:`FeatureNet` reads and writes the
+shipped ``.npz``: the weights and the recipe that made them.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from depth_nodes.core.learned.onnx import feature_model
+from depth_nodes.errors import ArgumentError, ConfigError
+
+F32 = NDArray[np.float32]
+
+#: The weights shipped with the package (``depth-nodes train-cost`` wrote them).
+SHIPPED = Path(__file__).with_name('weights') / 'cost_features.npz'
+#: Added to the local variance, (grey levels)^2: a flat patch stays flat, not noise blown up.
+VARIANCE_FLOOR = 4.0
+#: A feature vector shorter than this is divided by it instead (stays near zero).
+NORM_FLOOR = 1e-6
+
+
+class WeightsError(ConfigError):
+    """A weights file that is missing, unreadable or inconsistent."""
+
+
+@dataclass(frozen=True)
+class FeatureNet:
+    """The feature network's parameters.
+
+    Attributes:
+        kernels: Per layer, a (3, 3, C_in, C_out) float32 kernel (C_in = 1 first).
+        biases: Per layer, a (C_out,) float32 bias.
+        window: Side of the local normalisation box, px (odd).
+        recipe: How the weights were made (the training command's settings and figures).
+    """
+
+    kernels: tuple[F32, ...]
+    biases: tuple[F32, ...]
+    window: int
+    recipe: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.kernels or len(self.kernels) != len(self.biases):
+            raise WeightsError('a feature network needs one bias per kernel, and a kernel')
+        c_in = 1
+        for i, (k, b) in enumerate(zip(self.kernels, self.biases, strict=True)):
+            if k.ndim != 4 or k.shape[:3] != (3, 3, c_in) or b.shape != (k.shape[3],):
+                raise WeightsError(f'layer {i}: kernel {k.shape} / bias {b.shape} do not '
+                                   f'follow a layer of {c_in} channels')
+            c_in = k.shape[3]
+        if self.window < 3 or self.window % 2 == 0:
+            raise WeightsError(f'normalisation window {self.window} must be odd and >= 3')
+
+    @property
+    def channels(self) -> int:
+        """Features per pixel."""
+        return int(self.kernels[-1].shape[3])
+
+    @property
+    def radius(self) -> int:
+        """Pixels either side of a pixel that its features see (normalisation aside)."""
+        return len(self.kernels)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the weights."""
+        return sum(k.nbytes + b.nbytes for k, b in zip(self.kernels, self.biases, strict=True))
+
+    def save(self, path: str | Path) -> None:
+        """Write the weights and the recipe to an ``.npz``."""
+        arrays: dict[str, Any] = {'window': np.int32(self.window),
+                                  'recipe': np.array(json.dumps(self.recipe, sort_keys=True))}
+        for i, (k, b) in enumerate(zip(self.kernels, self.biases, strict=True)):
+            arrays[f'kernel{i}'] = k.astype(np.float32)
+            arrays[f'bias{i}'] = b.astype(np.float32)
+        np.savez_compressed(path, **arrays)
+
+    @classmethod
+    def load(cls, path: str | Path = SHIPPED) -> FeatureNet:
+        """Read an ``.npz`` that :meth:`save` wrote.
+
+        Raises:
+            WeightsError: The file is missing, not an ``.npz`` of this layout, or
+                inconsistent.
+        """
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                n = sum(1 for name in data.files if name.startswith('kernel'))
+                kernels = tuple(np.asarray(data[f'kernel{i}'], np.float32) for i in range(n))
+                biases = tuple(np.asarray(data[f'bias{i}'], np.float32) for i in range(n))
+                window = int(data['window'])
+                recipe = json.loads(str(data['recipe']))
+        except (OSError, KeyError, ValueError) as error:
+            raise WeightsError(f'cannot read feature weights {path}: {error}') from None
+        return cls(kernels, biases, window, recipe)
+
+
+def normalise(image: NDArray[Any], window: int) -> F32:
+    """(image - local mean) / sqrt(local variance + :data:`VARIANCE_FLOOR`), over a
+    ``window`` square box (the border replicated), as float32.
+
+    Raises:
+        ArgumentError: ``image`` is not a 2-D grey image.
+    """
+    if image.ndim != 2:
+        raise ArgumentError(f'image {image.shape} must be a grey (H, W) image')
+    img = np.asarray(image, np.float32)
+    size = (window, window)
+    mean = cv2.boxFilter(img, cv2.CV_32F, size, borderType=cv2.BORDER_REPLICATE)
+    square = cv2.boxFilter(img * img, cv2.CV_32F, size, borderType=cv2.BORDER_REPLICATE)
+    variance = np.maximum(square - mean * mean, 0.0) + np.float32(VARIANCE_FLOOR)
+    return ((img - mean) / np.sqrt(variance)).astype(np.float32)
+
+
+def conv3x3_reference(x: F32, kernel: F32, bias: F32) -> F32:
+    """'Same' 3x3 convolution (correlation, as the deep-learning libraries define it) of an
+    (H, W, C_in) array with zero padding: (H, W, C_out) float32."""
+    h, w, c_in = x.shape
+    padded = np.zeros((h + 2, w + 2, c_in), np.float32)
+    padded[1:-1, 1:-1] = x
+    out = np.empty((h, w, kernel.shape[3]), np.float32)
+    out[:] = bias
+    for dy in range(3):
+        for dx in range(3):
+            tap = padded[dy:dy + h, dx:dx + w].reshape(h * w, c_in)
+            out.reshape(h * w, -1)[:] += tap @ kernel[dy, dx]
+    return out
+
+
+class FeatureExtractor:
+    """The network's convolutions on OpenCV's dnn module (an ONNX model written by
+    ``onnx.py``; OpenCV's thread pool), built once for a :class:`FeatureNet`.
+
+    Args:
+        net: The weights.
+    """
+
+    def __init__(self, net: FeatureNet) -> None:
+        self.net = net
+        model = feature_model(net.kernels, net.biases)
+        self._dnn = cv2.dnn.readNetFromONNX(np.frombuffer(model, np.uint8))
+
+    def raw(self, image: NDArray[Any]) -> F32:
+        """(C, H, W) float32 features of a grey image before the division by their norm.
+
+        Raises:
+            ArgumentError: ``image`` is not a 2-D grey image.
+        """
+        x = normalise(image, self.net.window)
+        self._dnn.setInput(x[None, None])
+        return np.asarray(self._dnn.forward()[0], np.float32)
+
+    def features(self, image: NDArray[Any]) -> F32:
+        """(H, W, C) float32 unit feature vectors (a zero vector where every feature is 0).
+
+        Raises:
+            ArgumentError: ``image`` is not a 2-D grey image.
+        """
+        x = self.raw(image).transpose(1, 2, 0)
+        norm = np.sqrt((x * x).sum(axis=2, keepdims=True))
+        return np.ascontiguousarray(x / np.maximum(norm, np.float32(NORM_FLOOR)))
+
+
+def features_reference(net: FeatureNet, image: NDArray[Any]) -> F32:
+    """Plain numpy version of :func:`features`."""
+    x = normalise(image, net.window)[:, :, None]
+    last = len(net.kernels) - 1
+    for i, (kernel, bias) in enumerate(zip(net.kernels, net.biases, strict=True)):
+        x = conv3x3_reference(x, kernel, bias)
+        if i < last:
+            np.maximum(x, 0.0, out=x)
+    norm = np.sqrt((x * x).sum(axis=2, keepdims=True))
+    return (x / np.maximum(norm, np.float32(NORM_FLOOR))).astype(np.float32)
