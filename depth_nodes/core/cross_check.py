@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -66,6 +66,19 @@ FILL_MODES = ('background', 'labels')
 #: int16 steps per pixel of the speckle filter's copy (OpenCV's fixed point).
 SPECKLE_SCALE = 16
 
+
+class ConfidenceModel(Protocol):
+    """A learned replacement of :func:`confidence_map` (``core/learned/confidence.py``)."""
+
+    def confidence(self, raw: F32, cost_ratio: F32, difference: F32, labels: U8,
+                   filled: Bool, max_diff: float) -> F32:
+        """(H, W) float32 in [0, 1]: how likely the raw disparity is right."""
+        ...  # pragma: no cover (a protocol)
+
+
+#: Confidence models of the cross_check node: the hand-made product of terms or the
+#: learned one.
+CONFIDENCE_MODELS = ('handmade', 'learned')
 
 #: disp12_max_diff of -1 (no left-right check): any difference is consistent.
 NO_CHECK = 1e6
@@ -113,6 +126,9 @@ class CrossCheckParams:
                                      'over (1: no pooling)', low=1, high=31, odd=True)
     filled_confidence: float = setting(0.1, 'Confidence factor of filled pixels',
                                        low=0.0, high=1.0)
+    confidence_model: str = setting('handmade', 'handmade: the product of the terms above; '
+                                    'learned: the shipped network over the same signals '
+                                    '(core/learned/confidence.py)', choices=CONFIDENCE_MODELS)
 
     def validate(self) -> CrossCheckParams:
         """Check every field; returns self.
@@ -124,7 +140,8 @@ class CrossCheckParams:
 
     def arguments(self) -> dict[str, Any]:
         """The keyword arguments of :func:`cross_check` (:func:`cross_check` checks what
-        it is given; :meth:`validate` checks the fields as a whole)."""
+        it is given; :meth:`validate` checks the fields as a whole), but the ``model``
+        that ``confidence_model: learned`` stands for, which the caller loads."""
         max_diff = lr_threshold(self.disp12_max_diff)
         return {'disp12_max_diff': max_diff if max_diff > 0 else NO_CHECK,
                 'speckle_size': self.speckle_size, 'speckle_range': self.speckle_range,
@@ -446,7 +463,8 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
                 fill_mode: str = 'background', median_size: int = 0,
                 keep_outside: bool = True, confidence_window: int = 9,
                 filled_confidence: float = 0.1,
-                terms: ConfidenceTerms = DEFAULT_TERMS) -> CrossCheckResult:
+                terms: ConfidenceTerms = DEFAULT_TERMS,
+                model: ConfidenceModel | None = None) -> CrossCheckResult:
     """Left-right check, speckle removal, optional hole filling and median, confidence.
 
     Args:
@@ -464,6 +482,9 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
         confidence_window: Odd pooling window of the cost term.
         filled_confidence: Confidence factor of filled pixels, in [0, 1].
         terms: The confidence's other terms (:class:`ConfidenceTerms`).
+        model: A learned confidence instead of the terms' product (0 where the output
+            has no disparity; ``confidence_window``, ``filled_confidence`` and ``terms``
+            are then unused).
 
     Returns:
         The checked disparity, its confidence and the per-pixel labels.
@@ -488,8 +509,13 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
         out, filled = fill_holes(left, labels, mode=fill_mode, keep=valid)
     if median_size:
         out = median_filter(out, median_size)
-    confidence = confidence_map(cost_ratio, check.difference, valid,
-                                window=confidence_window, max_diff=disp12_max_diff,
-                                filled=filled, filled_confidence=filled_confidence,
-                                disparity=out, terms=terms)
+    if model is not None:
+        learned = model.confidence(left, np.asarray(cost_ratio, np.float32),
+                                   check.difference, labels, filled, disp12_max_diff)
+        confidence = np.where(np.isnan(out), np.float32(0.0), learned).astype(np.float32)
+    else:
+        confidence = confidence_map(cost_ratio, check.difference, valid,
+                                    window=confidence_window, max_diff=disp12_max_diff,
+                                    filled=filled, filled_confidence=filled_confidence,
+                                    disparity=out, terms=terms)
     return CrossCheckResult(out, confidence, labels, filled, check.difference)

@@ -21,7 +21,8 @@ The algorithm lives in :mod:`depth_nodes.core.cross_check`. Parameters (all but 
 synchronisation ones change at runtime and apply from the next frame): ``disp12_max_diff``
 (0 counts as 1 px, as in OpenCV's StereoSGBM; -1: no left-right check),
 ``speckle_size``, ``speckle_range``, ``fill_holes``, ``fill_mode``, ``median_size``,
-``keep_extrapolated``, ``confidence_window``, ``filled_confidence``.
+``keep_extrapolated``, ``confidence_window``, ``filled_confidence``, ``confidence_model``
+(``handmade`` or ``learned``: the shipped network over the same signals, read once).
 
 Outputs are computed only while subscribed (lazy), or always offline (the check yields
 both at once: an output nobody wants is not built).
@@ -29,7 +30,8 @@ both at once: an output nobody wants is not built).
 Frames without output are counted and logged with a reason: ``disparity_encoding`` (a
 DisparityImage not 32FC1), ``unsupported_encoding`` (cost_ratio not 32FC1),
 ``malformed_image``, ``size_mismatch`` (the three inputs differ in size),
-``range_mismatch`` (the two views' disparity windows differ), ``sync_*``.
+``range_mismatch`` (the two views' disparity windows differ), ``no_weights`` (the learned
+confidence's weights cannot be read), ``sync_*``.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ from sensor_msgs.msg import Image
 from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.core.cross_check import CrossCheckParams, cross_check
+from depth_nodes.core.learned.confidence import shipped_confidence
+from depth_nodes.core.learned.network import WeightsError
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity, read_disparity
 from depth_nodes.ros.image import array_to_image
@@ -122,7 +126,15 @@ class CrossCheckNode(DepthNode):
         if np.isnan(ratio).all():  # no matching cost (OpenCV): leave distinctiveness out
             ratio = np.zeros_like(ratio)
         params = CrossCheckParams(**{name: values[name] for name in PARAMETER_NAMES})
-        result = cross_check(left.disparity, right.disparity, ratio, **params.arguments())
+        model = None
+        if params.confidence_model == 'learned':
+            try:
+                model = shipped_confidence()
+            except WeightsError as exc:
+                self.drop('no_weights', str(exc))
+                return
+        result = cross_check(left.disparity, right.disparity, ratio, **params.arguments(),
+                             model=model)
         header = disparity_msg.header
         if want_disparity:
             self.pub_disparity.publish(build_disparity(

@@ -36,6 +36,7 @@ Frames without output are counted and logged with a reason: ``size_mismatch``,
 ``unsupported_format`` (a compressed image that cannot be read), ``uncalibrated``,
 ``bad_calibration``, ``camera_info_mismatch`` (camera_info size differs from the image),
 ``range_too_wide`` (the disparity window does not fit the image), ``sync_*``, and
+``no_weights`` (``matching_cost`` learned and the shipped weights cannot be read), and
 ``match_failed`` (the matcher raised; not expected, but never silent).
 
 ``parallel_frames`` > 1 matches that many frames at once on worker threads (each with its
@@ -59,6 +60,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.core.cross_check import lr_threshold
+from depth_nodes.core.learned.network import WeightsError
 from depth_nodes.core.opencv_stereo import BmSettings, SgbmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.core.settings import Rule, problem
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
@@ -347,7 +349,11 @@ class SgmStereoNode(DepthNode):
             use_threads(threads)  # numba's setting is per thread
             matcher = self._take_matcher(params)
             try:
-                result = matcher.match(left, right)
+                try:
+                    result = matcher.match(left, right)
+                except WeightsError as exc:
+                    self.drop('no_weights', str(exc))
+                    return (None, None, None), time.perf_counter() - start
                 msgs = (build_disparity(result.disparity, header, delta_d=delta_d, **common)
                         if want_disparity else None,
                         build_disparity(result.disparity_right, right_msg.header,
