@@ -35,8 +35,9 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    # the Fast DDS profile the nodes use for large messages (depth_nodes/ros/dds.py)
-    package_data={PACKAGE: ['ros/*.xml']},
+    # the Fast DDS profile the nodes use for large messages (depth_nodes/ros/dds.py); the
+    # learned matching cost's and confidence's weights
+    package_data={PACKAGE: ['ros/*.xml', 'core/learned/weights/*.npz']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
@@ -62,6 +63,10 @@ setup(
         # needs it. libusb-package: pyrealsense2's native library needs libusb-1.0, which a
         # machine without a RealSense has no reason to carry
         'realsense': ['pyrealsense2', 'libusb-package'],
+        # `depth-nodes train-cost` / `train-confidence` only (no node imports them): JAX on
+        # the CPU for the gradients; scikit-image for its photographs (textures of the
+        # training pairs) and its real Middlebury motorcycle pair (held-out validation)
+        'train': ['jax', 'scikit-image'],
     },
     zip_safe=False,  # Fast DDS reads the profile from a real file
     maintainer='depth_nodes maintainers',

@@ -52,6 +52,7 @@ OPTIONAL = {
     # eval-depth-filter --librealsense, bench depth_filter: librealsense's filters beside
     'pyrealsense2': 'realsense',
     'libusb_package': 'realsense',
+    'jax': 'train',  # depth-nodes train-cost / train-confidence
 }
 
 

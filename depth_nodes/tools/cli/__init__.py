@@ -5,7 +5,8 @@ it), ``process`` (run nodes over a bag offline),
 ``pipeline`` (the nodes of a graph live, in one process), ``param`` (a running node's
 parameters), ``play`` / ``record`` (bags into and out of a live graph), ``reindex`` (a
 recording cut off made a complete bag again), ``eval``
-(accuracy against the ground truth in a bag), ``bench`` (speed beside OpenCV). A user error
+(accuracy against the ground truth in a bag), ``bench`` (speed beside OpenCV),
+``train-cost`` / ``train-confidence`` (the learned matching cost and confidence). A user error
 prints one line and exits non-zero; never a traceback.
 
 Each command is a module of this package with ``add_arguments(parser)`` and
@@ -70,6 +71,10 @@ COMMANDS = (
     Command('eval-depth-filter', "the depth filter against the simulator's ground truth, "
             "stage by stage beside librealsense's filters", 'evaluate_depth_filter'),
     Command('bench', 'speed figures beside OpenCV, measured in one run', 'bench'),
+    Command('train-cost', "train the learned matching cost's feature network on simulated "
+            'scenes (the train extra)', 'train_cost'),
+    Command('train-confidence', "train cross_check's learned confidence on simulated scenes "
+            '(the train extra)', 'train_confidence'),
 )
 _BY_NAME = {command.name: command for command in COMMANDS}
 

@@ -1,0 +1,127 @@
+"""Training of the learned matching cost and confidence (the ``train`` extra): the
+training pairs' ground truth, the augmentation, JAX's network against the numpy one the
+nodes run, short reproducible training runs, and the commands' errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from helpers import run_cli
+
+from depth_nodes.core.learned.confidence import ConfidenceModel
+from depth_nodes.core.learned.network import FeatureNet, features_reference, normalise
+from depth_nodes.tools.train.confidence import ConfidenceConfig, train_confidence
+from depth_nodes.tools.train.cost import TrainConfig, forward, init_params, load_jax, train
+from depth_nodes.tools.train.data import DataConfig, augment, split, triplets
+from depth_nodes.tools.train.photos import load_photos, photo_scene
+
+
+@pytest.fixture(scope='module')
+def photos() -> list[np.ndarray]:
+    return load_photos()
+
+
+def test_photograph_pairs_have_exact_disparity(photos: list[np.ndarray]) -> None:
+    scene = photo_scene(photos, 0, 3)
+    h, w = scene.disparity.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    # the right view sampled at x - d is the left view where the right camera sees it
+    warped = cv2.remap(scene.right.astype(np.float32), xs - scene.disparity, ys,
+                       cv2.INTER_LINEAR)
+    diff = np.abs(warped - scene.left.astype(np.float32)).mean(axis=2)
+    assert 0.5 < scene.visible.mean() < 1.0
+    assert np.median(diff[scene.visible]) < 2.0
+    assert np.median(diff[~scene.visible]) > 5.0  # occluded: another layer is seen
+    assert photo_scene(photos, 0, 3).disparity.tobytes() == scene.disparity.tobytes()
+
+
+def test_augmentation_is_seeded_and_changes_the_pair(photos: list[np.ndarray]) -> None:
+    scene = photo_scene(photos, 1, 0)
+    a = augment(scene, np.random.default_rng(5))
+    b = augment(scene, np.random.default_rng(5))
+    c = augment(scene, np.random.default_rng(6))
+    assert a[0].dtype == np.uint8
+    assert a[0].shape == scene.disparity.shape
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+    assert not np.array_equal(a[0], c[0])
+
+
+def test_triplets_put_the_positive_on_the_true_match(photos: list[np.ndarray]) -> None:
+    scene = photo_scene(photos, 2, 1)
+    config = DataConfig(samples_per_scene=400)
+    left, pos, neg = triplets(scene, config, np.random.default_rng(0))
+    assert left.shape == pos.shape == neg.shape
+    assert left.shape[1:] == (9, 9)
+    # the true match's patch is closer to the left one than a patch a few px off
+    d_pos = np.abs(left - pos).mean(axis=(1, 2))
+    d_neg = np.abs(left - neg).mean(axis=(1, 2))
+    assert (d_pos < d_neg).mean() > 0.65  # chance: 0.5 (noise, flat regions, 1 px negatives)
+    _, _, candidates = triplets(scene, DataConfig(samples_per_scene=50, candidates=3),
+                                np.random.default_rng(0))
+    assert candidates.shape[1:] == (6, 9, 9)
+
+
+def test_validation_scenes_are_held_out_of_each_kind() -> None:
+    train_scenes, held = split(10, 20, 0.1)
+    assert held == [('sim', 9), ('photo', 18), ('photo', 19)]
+    assert not set(train_scenes) & set(held)
+    assert len(train_scenes) == 27
+
+
+def test_jax_network_is_the_numpy_network_the_nodes_run() -> None:
+    jax = load_jax()
+    params = init_params(TrainConfig(channels=5, layers=3), seed=2)
+    net = FeatureNet(tuple(k for k, _ in params), tuple(b + 0.01 for _, b in params), 9)
+    image = cv2.GaussianBlur(np.random.default_rng(3).integers(0, 256, (20, 24))
+                             .astype(np.uint8), (3, 3), 0)
+    whole = features_reference(net, image)
+    patch = normalise(image, 9)[7:14, 9:16]  # the 7x7 receptive field of pixel (10, 12)
+    jax_params = [(jax.numpy.asarray(k), jax.numpy.asarray(b))
+                  for k, b in zip(net.kernels, net.biases, strict=True)]
+    got = np.asarray(forward(jax, jax_params, patch[None]))[0]
+    np.testing.assert_allclose(got, whole[10, 12], atol=1e-5)
+
+
+@pytest.mark.slow
+def test_a_short_cost_training_learns_and_repeats(tmp_path: Path) -> None:
+    data = DataConfig(scenes=0, photo_scenes=6, samples_per_scene=400, seed=1)
+    config = TrainConfig(channels=4, layers=2, steps=60, batch=64)
+    first = train(data, config, log=lambda _: None, log_every=30)
+    again = train(data, config, log=lambda _: None, log_every=30)
+    assert first.validation_ranked[-1] > 0.6  # chance is 0.5
+    assert first.validation_loss[-1] < first.validation_loss[0] or \
+        first.train_loss[-1] < first.train_loss[0]
+    for a, b in zip(first.net.kernels, again.net.kernels, strict=True):
+        np.testing.assert_array_equal(a, b)
+    first.net.save(tmp_path / 'w.npz')
+    assert FeatureNet.load(tmp_path / 'w.npz').recipe['data']['photo_scenes'] == 6
+
+
+@pytest.mark.slow
+def test_a_short_confidence_training_predicts_right_pixels() -> None:
+    config = ConfidenceConfig(scenes=0, photo_scenes=4, pixels_per_scene=3000, steps=300,
+                              hidden=8, seed=1)
+    model = train_confidence(config, log=lambda _: None)
+    assert isinstance(model, ConfidenceModel)
+    assert model.recipe['validation_loss'] < 0.6
+
+
+@pytest.mark.slow
+def test_training_commands_refuse_bad_arguments(tmp_path: Path) -> None:
+    (tmp_path / 'there.npz').write_bytes(b'')
+    cases = [
+        (['train-cost', str(tmp_path / 'there.npz')], 'exists (--force replaces it)'),
+        (['train-cost', str(tmp_path / 'w.pt')], 'must end in .npz'),
+        (['train-cost', str(tmp_path / 'no' / 'w.npz')], 'is not a folder'),
+        (['train-cost', str(tmp_path / 'w.npz'), '--steps', '0'], '--steps must be at least 1'),
+        (['train-confidence', str(tmp_path / 'c.npz'), '--scenes', '1', '--photo-scenes',
+          '0'], 'must add up to at least 2'),
+    ]
+    for args, message in cases:
+        result = run_cli(args)
+        assert result.returncode == 1, (args, result.stderr)
+        assert message in result.stderr, result.stderr
+        assert 'Traceback' not in result.stderr
