@@ -13,7 +13,7 @@ import json
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +62,8 @@ class SgmBench:
     coarse_ms: float = 0.0
     coarse_cells: float = 1.0
     coarse_fallbacks: int = 0
+    #: Ours with ``matching_cost`` learned and census+learned (ms; 0: not run).
+    learned_ms: dict[str, float] = field(default_factory=dict)
 
     def format(self) -> str:
         """The printed report."""
@@ -86,6 +88,10 @@ class SgmBench:
             lines.insert(4, f'  census SGM, coarse search    {self.coarse_ms:8.1f} ms   '
                          f'ours / MODE_SGBM = {self.coarse_ms / self.sgbm_ms:5.2f}   '
                          f'(disparity_search: coarse; {how})')
+        for cost, ms in self.learned_ms.items():
+            lines.insert(4, f'  SGM, {cost + " cost":<22}{ms:8.1f} ms   ours / MODE_SGBM = '
+                         f'{ms / self.sgbm_ms:5.2f}   (matching_cost {cost}: '
+                         f'{ms / self.ours_ms:4.2f} x census)')
         if self.peak_mb:
             lines.append('  peak memory of a fresh process matching one frame (RSS): ours '
                          f'{self.peak_mb["ours"]:.0f} MB, MODE_HH {self.peak_mb["hh"]:.0f} '
@@ -269,9 +275,13 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
         finally:
             numba.set_num_threads(threads)
 
+    learned = {cost: SgmMatcher(SgmParams(disparity_range=disparities, paths=paths,
+                                          matching_cost=cost))
+               for cost in ('learned', 'census+learned')}
     fns = {
         'ours': lambda: matcher.match(left, right),
         'coarse': lambda: coarse.match(left, right),
+        **{cost: (lambda m=m: m.match(left, right)) for cost, m in learned.items()},
         'hh': lambda: opencv_sgbm(left, right, TUNED_HH, disparity_range=disparities),
         'sgbm': lambda: opencv_sgbm(left, right, TUNED_SGBM, disparity_range=disparities),
     }
@@ -281,7 +291,7 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
         loops = busy_loops(busy)
         try:
             time.sleep(0.5)  # let them take their cores
-            contended = {k: f for k, f in fns.items() if k != 'coarse'}
+            contended = {k: f for k, f in fns.items() if k not in ('coarse', *learned)}
             busy_ms = median_ms({**contended, 'ours_1': one_thread}, repeats, settle=0.05)
         finally:
             for loop in loops:
@@ -292,4 +302,4 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
                     peak_memory(w, h, disparities, paths, threads) if memory else {},
                     cold_start_sgm() if cold_start else {},
                     kernel_limits(), busy, busy_ms, ms['coarse'], coarse.search_cells,
-                    coarse.fallbacks)
+                    coarse.fallbacks, {cost: ms[cost] for cost in learned})

@@ -7,7 +7,8 @@ import argparse
 import contextlib
 from pathlib import Path
 
-from depth_nodes.errors import BagError, DepthNodesError
+from depth_nodes.core.sgm.params import MATCHING_COSTS
+from depth_nodes.errors import ArgumentError, BagError, DepthNodesError
 from depth_nodes.tools.evaluation.evaluate import evaluate_bag, has_ground_truth
 from depth_nodes.tools.evaluation.multiview import (
     evaluate_multiview_bag,
@@ -29,6 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--preview-frames', type=int, default=10, metavar='N',
                         help='previews of the first N frames (default 10)')
     parser.add_argument('--no-baseline', action='store_true', help='skip OpenCV StereoSGBM')
+    parser.add_argument('--matching-costs', default='', metavar='LIST',
+                        help='comma-separated matching costs (census, learned, '
+                        'census+learned): a row each for the SGM matcher alone with that '
+                        'cost, on the same rectified pair as OpenCV')
     parser.add_argument('--grid', action='store_true',
                         help='also print every setting of the 18-setting OpenCV grid')
     parser.add_argument('--skip', type=int, default=10, metavar='N',
@@ -52,9 +57,19 @@ def run(args: argparse.Namespace) -> int:
     return _evaluate(args)
 
 
+def _matching_costs(text: str) -> tuple[str, ...]:
+    costs = tuple(c.strip() for c in text.split(',') if c.strip())
+    for cost in costs:
+        if cost not in MATCHING_COSTS:
+            raise ArgumentError(f'--matching-costs: {cost!r} is not one of '
+                                f'{", ".join(MATCHING_COSTS)}')
+    return costs
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     if args.skip < 0:
         raise BagError(f'--skip must be >= 0, got {args.skip}')
+    costs = _matching_costs(args.matching_costs)
     if is_multiview_bag(args.bag):
         print(evaluate_multiview_bag(args.bag, skip=args.skip).format())
         return 0
@@ -71,7 +86,8 @@ def _evaluate(args: argparse.Namespace) -> int:
               f'written to {args.previews}')
         return 0
     report = evaluate_bag(args.bag, threshold=args.threshold, baselines=not args.no_baseline,
-                          previews=args.previews, preview_frames=args.preview_frames)
+                          previews=args.previews, preview_frames=args.preview_frames,
+                          matching_costs=costs)
     if not report.rows:
         raise BagError(f'nothing to score in {args.bag}: no disparity besides the ground '
                        'truth, and --no-baseline')

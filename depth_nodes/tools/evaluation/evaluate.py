@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +44,7 @@ from depth_nodes.core.opencv_stereo import (
     opencv_sgbm,
 )
 from depth_nodes.core.rectify import rectify_image
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.errors import ArgumentError, BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
@@ -279,8 +280,13 @@ def evaluate_bag(
     baselines: bool = True,
     previews: str | Path | None = None,
     preview_frames: int = 10,
+    matching_costs: tuple[str, ...] = (),
 ) -> EvalReport:
     """Score every disparity in the bag at ``path`` against its ground truth.
+
+    ``matching_costs`` adds a row per matching cost (``census``, ``learned``,
+    ``census+learned``): the census SGM matcher alone (default settings, the baseline's
+    disparity window) on the same rectified pair as the OpenCV baseline.
 
     Raises:
         BagError: The bag is missing/corrupt or has no ``.../left/disparity_gt`` topic.
@@ -321,6 +327,7 @@ def evaluate_bag(
                         (np.inf, -np.inf), threshold)
     acc: dict[str, _Accumulator] = defaultdict(_Accumulator)
     grid_acc: dict[str, _Accumulator] = defaultdict(_Accumulator)
+    matchers: dict[str, SgmMatcher] = {}
     conf_for = {c: _disparity_for(c, estimates) for c in confidences}
     occlusion_topic = f'{ns}/left/occlusion_gt'
     if occlusion_topic in data:
@@ -367,6 +374,13 @@ def evaluate_bag(
             for settings in SGBM_GRID:
                 est = opencv_sgbm(left, right, settings, disparity_range=drange)
                 grid_acc[settings.label].add(est, gt, nonocc)
+        for cost in matching_costs:
+            left, right = _rectified_pair(data, ns, stamp)
+            drange = _baseline_range(data, estimates, stamp, gt)
+            matcher = matchers.setdefault(cost, SgmMatcher(SgmParams(matching_cost=cost)))
+            matcher.set_params(replace(matcher.params, disparity_range=drange))
+            est = matcher.match(left, right).disparity
+            acc[f'sgm matcher, matching_cost {cost}'].add(est.copy(), gt, nonocc)
         if previews is not None and stamp in sorted(gt_frames)[:preview_frames]:
             for topic in depths:  # the estimated depth too, in metres
                 msg = data[topic].get(stamp)
