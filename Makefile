@@ -38,8 +38,8 @@ check: venv
 	$(BIN)/python -m pytest -q -m 'not slow'
 
 # The shipped stereo graph on the bundled simulator bag and on a real pair with ground
-# truth (Middlebury 2003 Teddy, test/data), each scored beside OpenCV's StereoSGBM; the
-# depth filter on the bundled depth camera's bag, beside librealsense's filters.
+# truth (Middlebury 2003 Teddy, test/data), each scored beside OpenCV's StereoSGBM (Teddy
+# also beside the matcher with each matching cost, census and learned); the depth filter on the bundled depth camera's bag, beside librealsense's filters.
 TEDDY := test/data/middlebury2003/teddy
 demo: venv
 	rm -rf $(DEMO_OUT)
@@ -49,7 +49,8 @@ demo: venv
 	  --gt $(TEDDY)/disp2.pgm --gt-scale 4 --gt-right $(TEDDY)/disp6.pgm
 	$(BIN)/depth-nodes process $(DEMO_OUT)/teddy $(DEMO_OUT)/teddy_out \
 	  --params config/disparity_64.yaml
-	$(BIN)/depth-nodes eval $(DEMO_OUT)/teddy_out --previews $(DEMO_OUT)/previews_teddy
+	$(BIN)/depth-nodes eval $(DEMO_OUT)/teddy_out --previews $(DEMO_OUT)/previews_teddy \
+	  --matching-costs census,learned,census+learned
 	$(BIN)/depth-nodes process bags/depth_moving_camera $(DEMO_OUT)/depth_filter_out \
 	  --config config/depth_filter_pipeline.yaml
 	$(BIN)/depth-nodes eval-depth-filter $(DEMO_OUT)/depth_filter_out --librealsense

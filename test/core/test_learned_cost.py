@@ -225,3 +225,11 @@ def test_census_plus_learned_beats_census_when_the_right_camera_sits_lower(sim_f
         density, bad = _bad(d, f, 1.0)
         scores[cost] = bad + (1 - density)  # dense bad-1: a dropped pixel counts as bad
     assert scores['census+learned'] < 0.9 * scores['census'], scores
+
+
+def test_the_windows_of_the_coarse_search_need_census() -> None:
+    left = _image(7)
+    lo = np.zeros(left.shape, np.int32)
+    matcher = SgmMatcher(SgmParams(disparity_range=8, matching_cost='learned'))
+    with pytest.raises(ArgumentError, match='match_windows needs matching_cost census'):
+        matcher.match_windows(left, left, lo, lo + 8)

@@ -307,3 +307,39 @@ def test_only_the_outputs_wanted_are_built(node: Any, monkeypatch: pytest.Monkey
     assert calls == work
     assert node.drops == {}
     assert node.accounting.skipped == (0 if wanted else 1)
+
+
+def test_the_learned_confidence_is_the_cores(context: Context) -> None:
+    from depth_nodes.core.learned.confidence import shipped_confidence
+
+    node = CrossCheckNode(context=context, parameter_overrides=[
+        Parameter('confidence_model', value='learned')])
+    capture(node)
+    try:
+        node.on_frame(*_inputs())
+        expected = cross_check(MATCH.disparity, MATCH.disparity_right, MATCH.cost_ratio,
+                               model=shipped_confidence())
+        np.testing.assert_array_equal(image_to_array(node.outbox['/confidence']),
+                                      expected.confidence)
+        assert node.drops == {}
+    finally:
+        node.destroy_node()
+
+
+def test_unreadable_confidence_weights_are_a_counted_drop(context: Context,
+                                                          monkeypatch: pytest.MonkeyPatch,
+                                                          tmp_path: Path) -> None:
+    from depth_nodes.core.learned import confidence
+
+    monkeypatch.setattr(confidence, 'SHIPPED', tmp_path / 'gone.npz')
+    confidence.shipped_confidence.cache_clear()
+    node = CrossCheckNode(context=context, parameter_overrides=[
+        Parameter('confidence_model', value='learned')])
+    capture(node)
+    try:
+        node.on_frame(*_inputs())
+        assert node.outbox == {}
+        assert node.drops == {'no_weights': 1}
+    finally:
+        node.destroy_node()
+        confidence.shipped_confidence.cache_clear()

@@ -490,3 +490,40 @@ def test_parallel_frames_decide_what_is_wanted_before_the_work(
         ('/disparity_right', 100 + i) for i in range(4)]
     assert built == {'build_disparity': 4}
     assert node.drops == {}
+
+
+def test_the_learned_cost_runs_in_the_node_as_in_the_core(context: Context) -> None:
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48),
+        Parameter('matching_cost', value='census+learned')])
+    capture(node)
+    try:
+        node.on_frame(*_inputs())
+        expected = SgmMatcher(sgm_params(node.params.values)).match(FRAME.left_rect_gt,
+                                                                   FRAME.right_rect_gt)
+        assert sgm_params(node.params.values).matching_cost == 'census+learned'
+        frame = read_disparity(node.outbox['/disparity'])
+        np.testing.assert_array_equal(frame.disparity, expected.disparity)
+        assert (np.abs(frame.disparity - FRAME.disparity_gt) < 2).mean() > 0.75
+        assert node.drops == {}
+    finally:
+        node.destroy_node()
+
+
+def test_unreadable_learned_weights_are_a_counted_drop(context: Context,
+                                                       monkeypatch: pytest.MonkeyPatch,
+                                                       tmp_path: Any) -> None:
+    from depth_nodes.core.learned import network
+
+    monkeypatch.setattr(network, 'SHIPPED', tmp_path / 'gone.npz')
+    network.shipped_features.cache_clear()
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        Parameter('disparity_range', value=48), Parameter('matching_cost', value='learned')])
+    capture(node)
+    try:
+        node.on_frame(*_inputs())
+        assert node.outbox == {}
+        assert node.drops == {'no_weights': 1}
+    finally:
+        node.destroy_node()
+        network.shipped_features.cache_clear()

@@ -18,6 +18,7 @@ shipped ``.npz``: the weights and the recipe that made them.
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -114,6 +115,16 @@ class FeatureNet:
         except (OSError, KeyError, ValueError) as error:
             raise WeightsError(f'cannot read feature weights {path}: {error}') from None
         return cls(kernels, biases, window, recipe)
+
+
+@functools.cache
+def shipped_features() -> FeatureNet:
+    """The shipped weights, read once per process.
+
+    Raises:
+        WeightsError: The shipped file is missing or damaged.
+    """
+    return FeatureNet.load(SHIPPED)
 
 
 def normalise(image: NDArray[Any], window: int) -> F32:

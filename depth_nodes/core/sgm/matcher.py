@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.cross_check import remove_speckles
-from depth_nodes.core.learned.network import FeatureExtractor, FeatureNet
+from depth_nodes.core.learned.network import FeatureExtractor, shipped_features
 from depth_nodes.core.sgm import ranged
 from depth_nodes.core.sgm.bands import Band, run_tasks
 from depth_nodes.core.sgm.check import check_disparity
@@ -192,10 +192,14 @@ class SgmMatcher:
 
         Raises:
             ArgumentError: The windows are not (H, W), empty somewhere or outside the
-                range.
+                range, or ``matching_cost`` is not census (the windows' kernels are
+                census's).
         """
         h, w = left.shape
         p = self.params.check_width(w)
+        if p.matching_cost != 'census':
+            raise ArgumentError(f'match_windows needs matching_cost census, not '
+                                f'{p.matching_cost}')
         if lo.shape != (h, w) or wid.shape != (h, w) or (wid < 1).any() or (lo < 0).any() \
                 or (lo + wid > p.disparity_range).any():
             raise ArgumentError('windows must be (H, W), non-empty and inside the range')
@@ -229,7 +233,7 @@ class SgmMatcher:
         if p.matching_cost == 'census':
             return _cost_inputs(left, right, p, census)
         if self._net is None:
-            self._net = FeatureExtractor(FeatureNet.load())
+            self._net = FeatureExtractor(shipped_features())
         both = _cost_inputs(left, right, p, census) if p.matching_cost == 'census+learned' \
             else None
         return learned_costs(self._net, left, right, min_disparity=p.min_disparity,
