@@ -202,4 +202,5 @@ def features_reference(net: FeatureNet, image: NDArray[Any]) -> F32:
         if i < last:
             np.maximum(x, 0.0, out=x)
     norm = np.sqrt((x * x).sum(axis=2, keepdims=True))
-    return (x / np.maximum(norm, np.float32(NORM_FLOOR))).astype(np.float32)
+    unit: F32 = (x / np.maximum(norm, np.float32(NORM_FLOOR))).astype(np.float32)
+    return unit

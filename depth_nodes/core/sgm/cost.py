@@ -253,7 +253,10 @@ class StereoCostRows(CostRows, Protocol):
     """A stereo pair's costs (census or learned): rows whose disparity index ``k`` is
     ``min_disparity + k``, so the border statistic knows which cells are inside."""
 
-    min_disparity: int
+    @property
+    def min_disparity(self) -> int:
+        """The disparity of index 0."""
+        ...  # pragma: no cover (a protocol)
 
 
 @dataclass(frozen=True)

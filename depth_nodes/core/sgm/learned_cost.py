@@ -154,7 +154,8 @@ def unit_quantised_reference(raw: NDArray[np.float32]) -> I16:
     x = np.asarray(raw, np.float32).transpose(1, 2, 0)
     norm = np.sqrt((x * x).sum(axis=2, keepdims=True, dtype=np.float32))
     scale = np.float32(QUANT) / np.maximum(norm, np.float32(NORM_FLOOR))
-    return np.clip(np.rint(x * scale), -QUANT, QUANT).astype(np.int16)
+    out: I16 = np.clip(np.rint(x * scale), -QUANT, QUANT).astype(np.int16)
+    return out
 
 
 def learned_costs_from(left: I16, right: I16, *, min_disparity: int, weight: int,

@@ -256,6 +256,11 @@ def kernel_limits(width: int = 640, height: int = 480,
             'copy_gbs': 2 * source.nbytes / ms['copy'] / 1e6}
 
 
+def _timed_match(matcher: SgmMatcher, left: Any, right: Any) -> Any:
+    """What :func:`median_ms` times: one match of the pair."""
+    return lambda: matcher.match(left, right)
+
+
 def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
               size: tuple[int, int] = (640, 480), busy: int = 0, memory: bool = True,
               cold_start: bool = True) -> SgmBench:
@@ -281,7 +286,7 @@ def bench_sgm(*, repeats: int = 10, disparities: int = 128, paths: int = 8,
     fns = {
         'ours': lambda: matcher.match(left, right),
         'coarse': lambda: coarse.match(left, right),
-        **{cost: (lambda m=m: m.match(left, right)) for cost, m in learned.items()},
+        **{cost: _timed_match(m, left, right) for cost, m in learned.items()},
         'hh': lambda: opencv_sgbm(left, right, TUNED_HH, disparity_range=disparities),
         'sgbm': lambda: opencv_sgbm(left, right, TUNED_SGBM, disparity_range=disparities),
     }

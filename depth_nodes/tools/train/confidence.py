@@ -137,8 +137,7 @@ def train_confidence(config: ConfidenceConfig, *, cache: Path | None = None,
     means = tree_map(jnp.zeros_like, params)
     variances = tree_map(jnp.zeros_like, params)
 
-    @jax.jit
-    def step(p: Any, m: Any, v: Any, t: Any, x: Any, y: Any) -> Any:
+    def update(p: Any, m: Any, v: Any, t: Any, x: Any, y: Any) -> Any:
         value, grads = jax.value_and_grad(loss)(p, x, y)
         m = tree_map(lambda a, g: 0.9 * a + 0.1 * g, m, grads)
         v = tree_map(lambda a, g: 0.999 * a + 0.001 * g * g, v, grads)
@@ -146,6 +145,7 @@ def train_confidence(config: ConfidenceConfig, *, cache: Path | None = None,
                      / (jnp.sqrt(b / (1 - 0.999 ** t)) + 1e-8), p, m, v)
         return p, m, v, value
 
+    step = jax.jit(update)
     evaluate = jax.jit(loss)
     for t in range(1, config.steps + 1):
         idx = rng.integers(0, x_train.shape[0], config.batch)

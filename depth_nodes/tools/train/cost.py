@@ -1,10 +1,12 @@
 """Training of the learned matching cost's feature network, with JAX on the CPU (the
-``train`` extra; nothing else in the package imports JAX).
+``train`` extra; only this package, ``depth_nodes.tools.train``, imports JAX).
 
 The network is ``core/learned/network.py``'s, evaluated on patches (valid convolutions:
 a (2 layers + 1)-square patch gives one feature vector). The loss is MC-CNN's hinge on
 cosine similarities (Zbontar and LeCun, JMLR 2016): for each triplet,
-``max(0, margin + s(left, negative) - s(left, positive))``. Adam, a learning rate halved
+``max(0, margin + s(left, negative) - s(left, positive))`` (or, with
+``DataConfig.candidates``, a softmax over the true match and its nearest whole offsets:
+tried, not shipped, docs/learned.md). Adam, a learning rate halved
 in the last third, a batch drawn from a fixed shuffled order: the same seed gives the
 same weights on the same machine.
 """
@@ -154,9 +156,8 @@ def train(data: DataConfig, config: TrainConfig, *, cache: Path | None = None,
     def loss_only(p: Any, left: Any, pos: Any, neg: Any) -> Any:
         return hinge_loss(jax, p, left, pos, neg, config.margin)[0]
 
-    @jax.jit
-    def step(p: Any, m: Any, v: Any, t: Any, lr: Any, left: Any, pos: Any,
-             neg: Any) -> Any:
+    def update(p: Any, m: Any, v: Any, t: Any, lr: Any, left: Any, pos: Any,
+               neg: Any) -> Any:
         loss, grads = jax.value_and_grad(loss_only)(p, left, pos, neg)
         m = tree_map(lambda a, g: beta1 * a + (1 - beta1) * g, m, grads)
         v = tree_map(lambda a, g: beta2 * a + (1 - beta2) * g * g, v, grads)
@@ -164,6 +165,7 @@ def train(data: DataConfig, config: TrainConfig, *, cache: Path | None = None,
                      / (jnp.sqrt(b / (1 - beta2 ** t)) + eps), p, m, v)
         return p, m, v, loss
 
+    step = jax.jit(update)
     evaluate = jax.jit(lambda p, a, b, c: hinge_loss(jax, p, a, b, c, config.margin))
     rng = np.random.default_rng([data.seed, 4])
     order = rng.permutation(n)

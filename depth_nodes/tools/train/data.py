@@ -75,7 +75,7 @@ def _camera_response(rgb: U8, rng: np.random.Generator) -> F32:
         img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.0))
     if rng.random() < 0.5:
         bgr = np.clip(img[:, :, ::-1] * 255.0, 0, 255).astype(np.uint8)
-        mosaic = np.zeros((h, w), np.uint8)  # BGGR
+        mosaic = np.zeros((h, w), np.uint8)  # BGGR: OpenCV's older name is BayerRG
         mosaic[0::2, 0::2] = bgr[0::2, 0::2, 0]
         mosaic[0::2, 1::2] = bgr[0::2, 1::2, 1]
         mosaic[1::2, 0::2] = bgr[1::2, 0::2, 1]
@@ -84,8 +84,9 @@ def _camera_response(rgb: U8, rng: np.random.Generator) -> F32:
                             cv2.COLOR_BGR2GRAY).astype(np.float32)
     else:
         grey = 255.0 * (img @ _LUMA)
-    grey = grey + rng.normal(0.0, rng.uniform(0.5, 4.0), grey.shape).astype(np.float32)
-    return np.clip(grey, 0, 255).astype(np.float32)
+    grey = grey + np.asarray(rng.normal(0.0, rng.uniform(0.5, 4.0), grey.shape), np.float32)
+    out: F32 = np.clip(grey, 0, 255).astype(np.float32)
+    return out
 
 
 def augment(scene: Scene, rng: np.random.Generator) -> tuple[U8, U8]:
@@ -93,16 +94,17 @@ def augment(scene: Scene, rng: np.random.Generator) -> tuple[U8, U8]:
     shifted vertically by up to 0.4 px; JPEG-compressed a third of the time."""
     left = _camera_response(scene.left, rng)
     right = _camera_response(scene.right, rng)
-    shift = np.float32([[1, 0, 0], [0, 1, rng.uniform(-0.4, 0.4)]])
-    right = cv2.warpAffine(right, shift, right.shape[::-1], flags=cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE)
-    pair = []
-    for img in (left, right):
+    shift = np.array([[1, 0, 0], [0, 1, rng.uniform(-0.4, 0.4)]], np.float32)
+    moved = cv2.warpAffine(right, shift, (right.shape[1], right.shape[0]),
+                           flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    pair: list[U8] = []
+    for img in (left, moved):
         grey = np.clip(np.round(img), 0, 255).astype(np.uint8)
         if rng.random() < 0.33:
             quality = int(rng.integers(50, 96))
             ok, jpeg = cv2.imencode('.jpg', grey, [cv2.IMWRITE_JPEG_QUALITY, quality])
-            grey = cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE) if ok else grey
+            decoded = cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE) if ok else None
+            grey = grey if decoded is None else np.asarray(decoded, np.uint8)
         pair.append(grey)
     return pair[0], pair[1]
 
@@ -120,7 +122,8 @@ def _patches(image: F32, ys: NDArray[np.float64], xs: NDArray[np.float64],
     rows = np.clip(rows, 0, h - 1)
     a = image[rows, np.clip(x0, 0, w - 1)]
     b = image[rows, np.clip(x0 + 1, 0, w - 1)]
-    return (a * (1 - frac) + b * frac).astype(np.float32)
+    out: F32 = (a * (1 - frac) + b * frac).astype(np.float32)
+    return out
 
 
 def triplets(scene: Scene, config: DataConfig,

@@ -61,7 +61,7 @@ def load_photos() -> list[U8]:
         image = cv2.imread(str(folder / name), cv2.IMREAD_COLOR)
         if image is None:
             raise ConfigError(f'cannot read the photograph {folder / name}')
-        photos.append(np.ascontiguousarray(image[:, :, ::-1]))
+        photos.append(np.ascontiguousarray(image[:, :, ::-1], dtype=np.uint8))
     return photos
 
 
