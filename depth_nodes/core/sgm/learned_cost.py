@@ -4,7 +4,9 @@ matcher's (H, W, D) uint8 volume, like :class:`~depth_nodes.core.sgm.cost.CostIn
 Each image's unit feature vectors (``core/learned/network.py``) are computed once per
 frame and quantised to integers (:data:`QUANT` per unit); the cost of disparity ``d`` at
 (y, x) is then ``round(learned_weight * (1 - f_left(y, x) . f_right(y, x - d)))``, the
-dot product in 32-bit integers (exact, so the plain reference matches bit for bit). With
+dot product summed on 16-bit integer lanes: by Cauchy-Schwarz every partial sum of two
+quantised unit vectors is at most about (QUANT + sqrt(C) / 2)^2, 16 641 for 16 features,
+below 2^15, so the sum is exact and the plain reference matches bit for bit. With
 ``census+learned`` it is added to the census + intensity cost of the same cell. A cell
 whose match lies outside the right image costs
 :data:`~depth_nodes.core.sgm.cost.OUT_OF_RANGE_COST`, as with census, so the border rules
@@ -63,8 +65,9 @@ def _learned_rows(fl: I16, frm: I16, y0: int, min_disparity: int, weight: int, a
     """Rows y0 .. y0 + len(out) - 1 of the learned cost into ``out`` (added to what is
     there when ``add``: cells outside the right image already hold OUT_OF_RANGE_COST).
 
-    ``fl`` is (H, W, C), ``frm`` the right features mirrored, (H, C, W); ``acc`` is (D,)
-    int32 scratch (the kernel allocates nothing, ``jit.NO_NRT``)."""
+    ``fl`` is (H, W, C), ``frm`` the right features mirrored, (H, C, W), both quantised
+    unit vectors (see the module notes: their sums fit 16 bits); ``acc`` is (D,) int16
+    scratch (the kernel allocates nothing, ``jit.NO_NRT``)."""
     rows, w, n = out.shape
     c = fl.shape[2]
     q2 = np.int32(QUANT * QUANT)
@@ -160,7 +163,8 @@ def unit_quantised_reference(raw: NDArray[np.float32]) -> I16:
 
 def learned_costs_from(left: I16, right: I16, *, min_disparity: int, weight: int,
                        census: CostInputs | None = None) -> LearnedCosts:
-    """:class:`LearnedCosts` of quantised features given as two (H, W, C) arrays."""
+    """:class:`LearnedCosts` of quantised unit features (:func:`unit_quantised`) given
+    as two (H, W, C) arrays."""
     frm = np.ascontiguousarray(right[:, ::-1].transpose(0, 2, 1))
     return LearnedCosts(np.ascontiguousarray(left), frm, int(min_disparity), int(weight),
                         census)
