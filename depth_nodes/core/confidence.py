@@ -36,7 +36,8 @@ from numpy.typing import NDArray
 from depth_nodes.core.validate import float_map, non_negative
 from depth_nodes.errors import ArgumentError
 
-__all__ = ['DEFAULT_TERMS', 'PLAIN_TERMS', 'ConfidenceTerms', 'confidence_map']
+__all__ = ['DEFAULT_TERMS', 'PLAIN_TERMS', 'ConfidenceTerms', 'box_mean', 'confidence_map',
+           'outside_distance']
 
 F32 = NDArray[np.float32]
 #: Box of the smoothness term's local mean.
@@ -72,12 +73,13 @@ def _odd_window(name: str, value: Any) -> int:
     return int(value)
 
 
-def _box(values: F32, window: int) -> F32:
+def box_mean(values: F32, window: int) -> F32:
+    """The mean over a ``window`` x ``window`` box, the border reflected (float32)."""
     return np.asarray(cv2.blur(values, (window, window), borderType=cv2.BORDER_REFLECT),
                       dtype=np.float32)
 
 
-def _outside_distance(disparity: F32) -> F32:
+def outside_distance(disparity: F32) -> F32:
     """How far in px the partner ``x - d`` of each pixel lies outside the image (0 inside
     or where the disparity is NaN)."""
     w = disparity.shape[1]
@@ -92,9 +94,9 @@ def _outside_distance(disparity: F32) -> F32:
 def _smoothness(disparity: F32, scale: float) -> F32:
     finite = np.isfinite(disparity)
     values = np.where(finite, disparity, 0.0).astype(np.float32)
-    count = _box(finite.astype(np.float32), SMOOTHNESS_WINDOW)
+    count = box_mean(finite.astype(np.float32), SMOOTHNESS_WINDOW)
     with np.errstate(invalid='ignore', divide='ignore'):
-        mean = _box(values, SMOOTHNESS_WINDOW) / count
+        mean = box_mean(values, SMOOTHNESS_WINDOW) / count
         deviation = np.where(finite & (count > 0), np.abs(disparity - mean), 0.0)
     return (1.0 / (1.0 + np.square(deviation / scale))).astype(np.float32)
 
@@ -156,17 +158,17 @@ def confidence_reference(ratio: NDArray[Any], diff: NDArray[Any], keep: NDArray[
     of the float32 kernels in the tests)."""
     distinct = (1.0 - np.clip(np.nan_to_num(ratio, nan=1.0), 0.0, 1.0)).astype(np.float32)
     if window > 1:
-        distinct = _box(distinct, window)
+        distinct = box_mean(distinct, window)
     with np.errstate(invalid='ignore', over='ignore'):
         agree = 1.0 / (1.0 + np.square(np.nan_to_num(diff, nan=np.inf) / scale))
     shared = distinct
     if support_window > 1:
-        shared = shared * _box(keep.astype(np.float32), support_window)
+        shared = shared * box_mean(keep.astype(np.float32), support_window)
     if out is not None:
         if smooth_scale > 0:
             shared = shared * _smoothness(out, smooth_scale)
         if outside_scale > 0:
-            outside = _outside_distance(out)
+            outside = outside_distance(out)
             extrapolated = np.isnan(diff) & (outside > 0)
             agree = np.where(extrapolated, 1.0 / (1.0 + outside / outside_scale), agree)
     conf = np.where(keep, shared * agree, 0.0)
@@ -193,10 +195,10 @@ def _confidence_f32(ratio: F32, diff: F32, keep: NDArray[np.bool_], window: int,
     values = np.empty(shape if smooth else (1, 1), np.float32)
     _confidence_inputs(ratio, keep, disparity, smooth, distinct, keep_f, finite, values)
     if window > 1:
-        distinct = _box(distinct, window)
-    support = _box(keep_f, support_window) if support_window > 1 else keep_f
-    count = _box(finite, SMOOTHNESS_WINDOW) if smooth else finite
-    sums = _box(values, SMOOTHNESS_WINDOW) if smooth else values
+        distinct = box_mean(distinct, window)
+    support = box_mean(keep_f, support_window) if support_window > 1 else keep_f
+    count = box_mean(finite, SMOOTHNESS_WINDOW) if smooth else finite
+    sums = box_mean(values, SMOOTHNESS_WINDOW) if smooth else values
     conf = np.empty(shape, np.float32)
     _confidence_combine(distinct, diff, keep, support, support_window > 1, disparity, smooth,
                         count, sums, np.float32(smooth_scale), have_out and outside_scale > 0,

@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from depth_nodes.core.confidence import box_mean, outside_distance
 from depth_nodes.core.cross_check import MISMATCH, OCCLUDED, OUTSIDE, SPECKLE, VALID
 from depth_nodes.core.learned.network import WeightsError
 from depth_nodes.errors import ArgumentError
@@ -35,11 +35,6 @@ SIGNALS = ('distinct', 'distinct_5', 'distinct_9', 'lr_difference', 'lr_none',
            'gap_left', 'gap_right', 'slope')
 #: Cap in px of the differences and deviations among the signals.
 CAP_PX = 8.0
-
-
-def _box(values: F32, window: int) -> F32:
-    return np.asarray(cv2.blur(values, (window, window), borderType=cv2.BORDER_REFLECT),
-                      np.float32)
 
 
 def _gap(invalid: NDArray[np.bool_], cap: float) -> tuple[F32, F32]:
@@ -72,23 +67,20 @@ def confidence_signals(raw: F32, cost_ratio: F32, difference: F32, labels: NDArr
     agree = ((lr <= max_diff) & np.isfinite(difference)).astype(np.float32)
     valid = (labels == VALID).astype(np.float32)
     values = np.where(finite, raw, 0.0).astype(np.float32)
-    count = _box(finite.astype(np.float32), 5)
+    count = box_mean(finite.astype(np.float32), 5)
     with np.errstate(invalid='ignore', divide='ignore'):
-        mean = _box(values, 5) / count
-        square = _box(values * values, 5) / count
+        mean = box_mean(values, 5) / count
+        square = box_mean(values * values, 5) / count
     deviation = np.where(finite & (count > 0), np.abs(raw - mean), CAP_PX)
     spread = np.sqrt(np.maximum(np.nan_to_num(square - mean * mean, nan=0.0), 0.0))
-    xs = np.arange(w, dtype=np.float32)[None, :]
-    with np.errstate(invalid='ignore'):
-        xr = np.floor(xs - raw + 0.5)
-        outside = np.nan_to_num(np.maximum(np.maximum(-xr, xr - (w - 1)), 0.0), nan=0.0)
-    columns = [distinct, _box(distinct, 5), _box(distinct, 9), lr / CAP_PX,
-               np.isnan(difference).astype(np.float32), _box(agree, 9), _box(valid, 9),
+    outside = outside_distance(raw)
+    columns = [distinct, box_mean(distinct, 5), box_mean(distinct, 9), lr / CAP_PX,
+               np.isnan(difference).astype(np.float32), box_mean(agree, 9), box_mean(valid, 9),
                np.minimum(deviation, CAP_PX) / CAP_PX, np.minimum(spread, CAP_PX) / CAP_PX,
                np.minimum(outside, 2 * CAP_PX) / (2 * CAP_PX), valid,
                (labels == OCCLUDED).astype(np.float32), (labels == MISMATCH).astype(np.float32),
                (labels == SPECKLE).astype(np.float32), (labels == OUTSIDE).astype(np.float32),
-               np.asarray(filled, np.float32), _box(agree, 5), _box(valid, 25),
+               np.asarray(filled, np.float32), box_mean(agree, 5), box_mean(valid, 25),
                *(g / (2 * CAP_PX) for g in _gap(labels != VALID, 2 * CAP_PX)),
                np.minimum(np.abs(np.nan_to_num(np.gradient(values, axis=1), nan=CAP_PX)),
                           CAP_PX) / CAP_PX]

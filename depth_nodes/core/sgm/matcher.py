@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.cross_check import remove_speckles
+from depth_nodes.core.disparity_filters import remove_speckles
 from depth_nodes.core.learned.network import FeatureExtractor, shipped_features
 from depth_nodes.core.sgm import ranged
 from depth_nodes.core.sgm.bands import Band, run_tasks
