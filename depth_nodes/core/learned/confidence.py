@@ -12,7 +12,6 @@ the training's threshold of the truth. The training is ``depth_nodes.tools.train
 from __future__ import annotations
 
 import functools
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,7 @@ from numpy.typing import NDArray
 
 from depth_nodes.core.confidence import box_mean, outside_distance
 from depth_nodes.core.cross_check import MISMATCH, OCCLUDED, OUTSIDE, SPECKLE, VALID
-from depth_nodes.core.learned.network import WeightsError
+from depth_nodes.core.learned.network import WeightsError, read_layers, write_layers
 from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]
@@ -126,12 +125,8 @@ class ConfidenceModel:
 
     def save(self, path: str | Path) -> None:
         """Write the weights and the recipe to an ``.npz``."""
-        arrays: dict[str, Any] = {'recipe': np.array(json.dumps(self.recipe, sort_keys=True)),
-                                  'signals': np.array(SIGNALS)}
-        for i, (m, b) in enumerate(zip(self.matrices, self.biases, strict=True)):
-            arrays[f'matrix{i}'] = m.astype(np.float32)
-            arrays[f'bias{i}'] = b.astype(np.float32)
-        np.savez_compressed(path, **arrays)
+        write_layers(path, 'matrix', self.matrices, self.biases, self.recipe,
+                     signals=np.array(SIGNALS))
 
     @classmethod
     def load(cls, path: str | Path = SHIPPED) -> ConfidenceModel:
@@ -140,15 +135,8 @@ class ConfidenceModel:
         Raises:
             WeightsError: Missing, unreadable, inconsistent, or made for other signals.
         """
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                n = sum(1 for name in data.files if name.startswith('matrix'))
-                matrices = tuple(np.asarray(data[f'matrix{i}'], np.float32) for i in range(n))
-                biases = tuple(np.asarray(data[f'bias{i}'], np.float32) for i in range(n))
-                recipe = json.loads(str(data['recipe']))
-                signals = tuple(str(s) for s in data['signals'])
-        except (OSError, KeyError, ValueError) as error:
-            raise WeightsError(f'cannot read confidence weights {path}: {error}') from None
+        matrices, biases, recipe, extra = read_layers(path, 'matrix', 'confidence')
+        signals = tuple(str(s) for s in extra.get('signals', ()))
         if signals != SIGNALS:
             raise WeightsError(f'{path} was trained on other signals ({", ".join(signals)})')
         return cls(matrices, biases, recipe)

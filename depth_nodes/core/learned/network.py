@@ -90,12 +90,8 @@ class FeatureNet:
 
     def save(self, path: str | Path) -> None:
         """Write the weights and the recipe to an ``.npz``."""
-        arrays: dict[str, Any] = {'window': np.int32(self.window),
-                                  'recipe': np.array(json.dumps(self.recipe, sort_keys=True))}
-        for i, (k, b) in enumerate(zip(self.kernels, self.biases, strict=True)):
-            arrays[f'kernel{i}'] = k.astype(np.float32)
-            arrays[f'bias{i}'] = b.astype(np.float32)
-        np.savez_compressed(path, **arrays)
+        write_layers(path, 'kernel', self.kernels, self.biases, self.recipe,
+                     window=np.int32(self.window))
 
     @classmethod
     def load(cls, path: str | Path = SHIPPED) -> FeatureNet:
@@ -105,16 +101,42 @@ class FeatureNet:
             WeightsError: The file is missing, not an ``.npz`` of this layout, or
                 inconsistent.
         """
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                n = sum(1 for name in data.files if name.startswith('kernel'))
-                kernels = tuple(np.asarray(data[f'kernel{i}'], np.float32) for i in range(n))
-                biases = tuple(np.asarray(data[f'bias{i}'], np.float32) for i in range(n))
-                window = int(data['window'])
-                recipe = json.loads(str(data['recipe']))
-        except (OSError, KeyError, ValueError) as error:
-            raise WeightsError(f'cannot read feature weights {path}: {error}') from None
-        return cls(kernels, biases, window, recipe)
+        kernels, biases, recipe, extra = read_layers(path, 'kernel', 'feature')
+        if 'window' not in extra:
+            raise WeightsError(f'cannot read feature weights {path}: no window')
+        return cls(kernels, biases, int(extra['window']), recipe)
+
+
+def write_layers(path: str | Path, name: str, weights: tuple[F32, ...],
+                 biases: tuple[F32, ...], recipe: dict[str, Any], **extra: Any) -> None:
+    """An ``.npz`` of a network's layers (``<name>0``, ``bias0``, ...), its recipe (JSON)
+    and ``extra`` arrays: the layout of both learned parts' weights."""
+    arrays: dict[str, Any] = {'recipe': np.array(json.dumps(recipe, sort_keys=True)), **extra}
+    for i, (w, b) in enumerate(zip(weights, biases, strict=True)):
+        arrays[f'{name}{i}'] = w.astype(np.float32)
+        arrays[f'bias{i}'] = b.astype(np.float32)
+    np.savez_compressed(path, **arrays)
+
+
+def read_layers(path: str | Path, name: str, what: str) -> tuple[
+        tuple[F32, ...], tuple[F32, ...], dict[str, Any], dict[str, Any]]:
+    """What :func:`write_layers` wrote: the layers' weights and biases, the recipe, and
+    every other array by name.
+
+    Raises:
+        WeightsError: ``cannot read <what> weights <path>: why``.
+    """
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            n = sum(1 for key in data.files if key.startswith(name))
+            weights = tuple(np.asarray(data[f'{name}{i}'], np.float32) for i in range(n))
+            biases = tuple(np.asarray(data[f'bias{i}'], np.float32) for i in range(n))
+            recipe = json.loads(str(data['recipe']))
+            extra = {key: data[key] for key in data.files
+                     if key != 'recipe' and not key.startswith((name, 'bias'))}
+    except (OSError, KeyError, ValueError) as error:
+        raise WeightsError(f'cannot read {what} weights {path}: {error}') from None
+    return weights, biases, recipe, extra
 
 
 @functools.cache

@@ -6,7 +6,12 @@ from __future__ import annotations
 import argparse
 
 from depth_nodes.core.learned.confidence import SHIPPED
-from depth_nodes.tools.cli.train_cost import cache_folder, check_counts, weights_path
+from depth_nodes.tools.cli.train_cost import (
+    add_common_arguments,
+    cache_folder,
+    check_counts,
+    weights_path,
+)
 from depth_nodes.tools.train.confidence import ConfidenceConfig, train_confidence
 
 _DEFAULT = ConfidenceConfig()
@@ -22,17 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "JAX and scikit-image: pip install 'depth_nodes[train]'.")
     parser.epilog = (f'The shipped weights ({SHIPPED.name}) were made by the defaults: '
                      'depth-nodes train-confidence OUT.npz')
-    parser.add_argument('out', help='weights file to write (.npz)')
-    parser.add_argument('--seed', type=int, default=_DEFAULT.seed,
-                        help=f'seed of the scenes, augmentation and fit (default '
-                        f'{_DEFAULT.seed})')
-    parser.add_argument('--scenes', type=int, default=_DEFAULT.scenes,
-                        help=f'simulated scenes (default {_DEFAULT.scenes})')
-    parser.add_argument('--photo-scenes', type=int, default=_DEFAULT.photo_scenes,
-                        help=f'photograph pairs (default {_DEFAULT.photo_scenes})')
-    parser.add_argument('--cache', metavar='DIR',
-                        help='keep the rendered simulator scenes in DIR and reuse them (the '
-                        'same as train-cost --cache)')
+    add_common_arguments(parser, seed=_DEFAULT.seed, scenes=_DEFAULT.scenes,
+                         photo_scenes=_DEFAULT.photo_scenes)
     parser.add_argument('--pixels', type=int, default=_DEFAULT.pixels_per_scene,
                         help=f'pixels sampled per scene (default {_DEFAULT.pixels_per_scene})')
     parser.add_argument('--threshold', type=float, default=_DEFAULT.threshold,
@@ -43,7 +39,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f'{_DEFAULT.hidden})')
     parser.add_argument('--steps', type=int, default=_DEFAULT.steps,
                         help=f'optimiser steps (default {_DEFAULT.steps})')
-    parser.add_argument('--force', action='store_true', help='replace an existing OUT')
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,6 +14,27 @@ from depth_nodes.tools.train.data import DataConfig
 _DATA, _TRAIN = DataConfig(), TrainConfig()
 
 
+def add_common_arguments(parser: argparse.ArgumentParser, *, seed: int, scenes: int,
+                         photo_scenes: int) -> None:
+    """The options both training commands take: OUT, the seed, the scenes, the cache
+    (with that command's defaults)."""
+    parser.add_argument('out', help='weights file to write (.npz)')
+    parser.add_argument('--seed', type=int, default=seed,
+                        help=f'seed of the scenes, augmentation, sampling and initial '
+                        f'weights (default {seed})')
+    parser.add_argument('--scenes', type=int, default=scenes,
+                        help=f'simulated scenes, a tenth held out for validation (default '
+                        f'{scenes})')
+    parser.add_argument('--photo-scenes', type=int, default=photo_scenes,
+                        help=f'pairs of planes covered with photographs (scikit-image\'s '
+                        f'data set), a tenth held out (default {photo_scenes})')
+    parser.add_argument('--cache', metavar='DIR',
+                        help='keep the rendered simulator scenes in DIR and reuse them '
+                        '(a scene takes seconds to render; both training commands read '
+                        'the same files)')
+    parser.add_argument('--force', action='store_true', help='replace an existing OUT')
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of `train-cost`."""
     parser.description = (
@@ -24,19 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "'depth_nodes[train]'.")
     parser.epilog = (f'The shipped weights ({SHIPPED.name}) were made by the defaults: '
                      'depth-nodes train-cost OUT.npz')
-    parser.add_argument('out', help='weights file to write (.npz)')
-    parser.add_argument('--seed', type=int, default=_DATA.seed,
-                        help=f'seed of the scenes, augmentation, sampling and initial '
-                        f'weights (default {_DATA.seed})')
-    parser.add_argument('--scenes', type=int, default=_DATA.scenes,
-                        help=f'simulated scenes, a tenth held out for validation (default '
-                        f'{_DATA.scenes})')
-    parser.add_argument('--photo-scenes', type=int, default=_DATA.photo_scenes,
-                        help=f'pairs of planes covered with photographs (scikit-image\'s '
-                        f'data set), a tenth held out (default {_DATA.photo_scenes})')
-    parser.add_argument('--cache', metavar='DIR',
-                        help='keep the rendered simulator scenes in DIR and reuse them '
-                        '(a scene takes seconds to render)')
+    add_common_arguments(parser, seed=_DATA.seed, scenes=_DATA.scenes,
+                         photo_scenes=_DATA.photo_scenes)
     parser.add_argument('--samples', type=int, default=_DATA.samples_per_scene,
                         help=f'patch triplets per scene (default {_DATA.samples_per_scene})')
     parser.add_argument('--steps', type=int, default=_TRAIN.steps,
@@ -49,7 +59,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f'3x3 convolutions (default {_TRAIN.layers})')
     parser.add_argument('--log-every', type=int, default=1000, metavar='N',
                         help='print the losses every N steps (default 1000)')
-    parser.add_argument('--force', action='store_true', help='replace an existing OUT')
 
 
 def weights_path(text: str, force: bool) -> Path:

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from depth_nodes.core.cross_check import CrossCheckParams, cross_check, lr_threshold
 from depth_nodes.core.learned.confidence import SIGNALS, ConfidenceModel, confidence_signals
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
-from depth_nodes.tools.train.cost import load_jax
+from depth_nodes.tools.train.cost import adam_state, adam_step, load_jax
 from depth_nodes.tools.train.data import augment, split
 from depth_nodes.tools.train.photos import load_photos, photo_scene
 from depth_nodes.tools.train.scenes import Scene, sim_scene
@@ -133,23 +133,13 @@ def train_confidence(config: ConfidenceConfig, *, cache: Path | None = None,
         z = logits(p, x)
         return jnp.mean(jnp.maximum(z, 0) - z * y + jnp.log1p(jnp.exp(-jnp.abs(z))))
 
-    tree_map = jax.tree_util.tree_map
-    means = tree_map(jnp.zeros_like, params)
-    variances = tree_map(jnp.zeros_like, params)
-
-    def update(p: Any, m: Any, v: Any, t: Any, x: Any, y: Any) -> Any:
-        value, grads = jax.value_and_grad(loss)(p, x, y)
-        m = tree_map(lambda a, g: 0.9 * a + 0.1 * g, m, grads)
-        v = tree_map(lambda a, g: 0.999 * a + 0.001 * g * g, v, grads)
-        p = tree_map(lambda w, a, b: w - config.learning_rate * (a / (1 - 0.9 ** t))
-                     / (jnp.sqrt(b / (1 - 0.999 ** t)) + 1e-8), p, m, v)
-        return p, m, v, value
-
-    step = jax.jit(update)
+    means, variances = adam_state(jax, params)
+    step = adam_step(jax, loss)
     evaluate = jax.jit(loss)
     for t in range(1, config.steps + 1):
         idx = rng.integers(0, x_train.shape[0], config.batch)
         params, means, variances, value = step(params, means, variances, float(t),
+                                               config.learning_rate,
                                                x_train[idx], y_train[idx])
         if t % 1000 == 0 or t == config.steps:
             log(f'step {t}: train loss {float(value):.4f}, validation loss '

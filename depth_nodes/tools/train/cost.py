@@ -92,6 +92,34 @@ def forward(jax: Any, params: Any, patches: Any) -> Any:
     return x / jnp.maximum(jnp.sqrt((x * x).sum(axis=1, keepdims=True)), 1e-6)
 
 
+#: Adam's moment decays and its epsilon.
+ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
+
+
+def adam_state(jax: Any, params: Any) -> tuple[Any, Any]:
+    """Adam's first and second moments of ``params``, zero."""
+    zeros = jax.tree_util.tree_map(jax.numpy.zeros_like, params)
+    return zeros, jax.tree_util.tree_map(jax.numpy.zeros_like, params)
+
+
+def adam_step(jax: Any, loss: Callable[..., Any]) -> Any:
+    """The compiled Adam step of ``loss(params, *batch)``: ``step(params, means,
+    variances, t, learning_rate, *batch) -> (params, means, variances, loss)``, ``t``
+    counting from 1 (both trainings use it)."""
+    jnp, tree_map = jax.numpy, jax.tree_util.tree_map
+    beta1, beta2 = ADAM_BETAS
+
+    def update(p: Any, m: Any, v: Any, t: Any, lr: Any, *batch: Any) -> Any:
+        value, grads = jax.value_and_grad(loss)(p, *batch)
+        m = tree_map(lambda a, g: beta1 * a + (1 - beta1) * g, m, grads)
+        v = tree_map(lambda a, g: beta2 * a + (1 - beta2) * g * g, v, grads)
+        p = tree_map(lambda x, a, b: x - lr * (a / (1 - beta1 ** t))
+                     / (jnp.sqrt(b / (1 - beta2 ** t)) + ADAM_EPS), p, m, v)
+        return p, m, v, value
+
+    return jax.jit(update)
+
+
 def hinge_loss(jax: Any, params: Any, left: Any, positive: Any, negative: Any,
                margin: float) -> tuple[Any, Any]:
     """The mean hinge and the share of triplets ranked right (positive more similar).
@@ -148,24 +176,12 @@ def train(data: DataConfig, config: TrainConfig, *, cache: Path | None = None,
     log(f'{n} training triplets, {val_set[0].shape[0]} validation, '
         f'{time.monotonic() - start:.0f} s')
     params = [(jnp.asarray(k), jnp.asarray(b)) for k, b in init_params(config, data.seed)]
-    tree_map = jax.tree_util.tree_map
-    means = tree_map(jnp.zeros_like, params)
-    variances = tree_map(jnp.zeros_like, params)
-    beta1, beta2, eps = 0.9, 0.999, 1e-8
+    means, variances = adam_state(jax, params)
 
     def loss_only(p: Any, left: Any, pos: Any, neg: Any) -> Any:
         return hinge_loss(jax, p, left, pos, neg, config.margin)[0]
 
-    def update(p: Any, m: Any, v: Any, t: Any, lr: Any, left: Any, pos: Any,
-               neg: Any) -> Any:
-        loss, grads = jax.value_and_grad(loss_only)(p, left, pos, neg)
-        m = tree_map(lambda a, g: beta1 * a + (1 - beta1) * g, m, grads)
-        v = tree_map(lambda a, g: beta2 * a + (1 - beta2) * g * g, v, grads)
-        p = tree_map(lambda x, a, b: x - lr * (a / (1 - beta1 ** t))
-                     / (jnp.sqrt(b / (1 - beta2 ** t)) + eps), p, m, v)
-        return p, m, v, loss
-
-    step = jax.jit(update)
+    step = adam_step(jax, loss_only)
     evaluate = jax.jit(lambda p, a, b, c: hinge_loss(jax, p, a, b, c, config.margin))
     rng = np.random.default_rng([data.seed, 4])
     order = rng.permutation(n)
