@@ -41,8 +41,17 @@ from typing import Any
 
 import pytest
 from hostile_messages import stamp_variants, variants
-from node_frames import STEP_NS, Kind, is_empty, kind_of, make_node, participant_kept
+from node_frames import (
+    PARAMETERS,
+    STEP_NS,
+    Kind,
+    is_empty,
+    kind_of,
+    make_node,
+    participant_kept,
+)
 from rclpy.context import Context
+from rclpy.parameter import Parameter
 
 from depth_nodes.graph.description import resolve_plugin
 from depth_nodes.nodes.registry import NODES, NodeEntry
@@ -171,6 +180,27 @@ WITH_INPUTS = [entry for entry in NODES if entry.inputs != 'none']
 @pytest.mark.parametrize('entry', WITH_INPUTS, ids=lambda entry: entry.name)
 def test_node_survives_every_hostile_input_and_counts_it(context: Context,
                                                          entry: NodeEntry) -> None:
+    _campaign(context, entry)
+
+
+#: Settings that take another path through a node than its defaults: each gets the whole
+#: campaign too (the learned matching cost, the learned confidence).
+VARIANTS = {
+    'sgm_stereo': [Parameter('matching_cost', value='census+learned')],
+    'cross_check': [Parameter('confidence_model', value='learned')],
+}
+
+
+@pytest.mark.parametrize('name', sorted(VARIANTS))
+def test_the_learned_paths_survive_every_hostile_input(context: Context, name: str,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    entry = next(e for e in WITH_INPUTS if e.name == name)
+    monkeypatch.setitem(PARAMETERS, name, [*PARAMETERS.get(name, []), *VARIANTS[name]])
+    _campaign(context, entry)
+
+
+def _campaign(context: Context, entry: NodeEntry) -> None:
+    """Every hostile case of ``entry``'s inputs kind, each judged by :func:`verdict`."""
     kind = kind_of(entry)
     failures, reasons, count = [], Counter[str](), 0
     with participant_kept(context):

@@ -67,11 +67,13 @@ def confidence_signals(raw: F32, cost_ratio: F32, difference: F32, labels: NDArr
     valid = (labels == VALID).astype(np.float32)
     values = np.where(finite, raw, 0.0).astype(np.float32)
     count = box_mean(finite.astype(np.float32), 5)
-    with np.errstate(invalid='ignore', divide='ignore'):
+    # a disparity near float32's limit (hostile input) squares to inf: its spread is then
+    # capped like any spread over CAP_PX
+    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
         mean = box_mean(values, 5) / count
         square = box_mean(values * values, 5) / count
-    deviation = np.where(finite & (count > 0), np.abs(raw - mean), CAP_PX)
-    spread = np.sqrt(np.maximum(np.nan_to_num(square - mean * mean, nan=0.0), 0.0))
+        deviation = np.where(finite & (count > 0), np.abs(raw - mean), CAP_PX)
+        spread = np.sqrt(np.maximum(np.nan_to_num(square - mean * mean, nan=0.0), 0.0))
     outside = outside_distance(raw)
     columns = [distinct, box_mean(distinct, 5), box_mean(distinct, 9), lr / CAP_PX,
                np.isnan(difference).astype(np.float32), box_mean(agree, 9), box_mean(valid, 9),

@@ -377,7 +377,9 @@ def evaluate_bag(
         for cost in matching_costs:
             left, right = _rectified_pair(data, ns, stamp)
             drange = _baseline_range(data, estimates, stamp, gt)
-            matcher = matchers.setdefault(cost, SgmMatcher(SgmParams(matching_cost=cost)))
+            if cost not in matchers:
+                matchers[cost] = SgmMatcher(SgmParams(matching_cost=cost))
+            matcher = matchers[cost]
             matcher.set_params(replace(matcher.params, disparity_range=drange))
             est = matcher.match(left, right).disparity
             acc[f'sgm matcher, matching_cost {cost}'].add(est.copy(), gt, nonocc)
