@@ -234,3 +234,19 @@ def test_the_windows_of_the_coarse_search_need_census() -> None:
     matcher = SgmMatcher(SgmParams(disparity_range=8, matching_cost='learned'))
     with pytest.raises(ArgumentError, match='match_windows needs matching_cost census'):
         matcher.match_windows(left, left, lo, lo + 8)
+
+
+def test_a_stream_keeps_its_feature_buffers_and_its_results() -> None:
+    left, right = _image(8, 40, 64), _image(9, 40, 64)
+    matcher = SgmMatcher(SgmParams(disparity_range=16, matching_cost='learned'))
+    first = matcher.match(left, right).disparity.copy()
+    buffers = matcher._features
+    again = matcher.match(left, right).disparity
+    assert buffers is not None and matcher._features is not None
+    assert matcher._features[0] is buffers[0] and matcher._features[1] is buffers[1]
+    np.testing.assert_array_equal(first, again)
+    fresh = SgmMatcher(SgmParams(disparity_range=16, matching_cost='learned'))
+    np.testing.assert_array_equal(fresh.match(left, right).disparity, again)
+    # another size: new buffers of that size
+    matcher.match(left[:30], right[:30])
+    assert matcher._features[0].shape[:2] == (30, 64)

@@ -132,13 +132,19 @@ class LearnedCosts:
 
 
 def learned_costs(extractor: FeatureExtractor, left: NDArray[Any], right: NDArray[Any],
-                  *, min_disparity: int, weight: int,
-                  census: CostInputs | None = None) -> LearnedCosts:
-    """The features of a rectified grey pair, ready for :meth:`LearnedCosts.rows`."""
+                  *, min_disparity: int, weight: int, census: CostInputs | None = None,
+                  buffers: tuple[I16, I16] | None = None) -> LearnedCosts:
+    """The features of a rectified grey pair, ready for :meth:`LearnedCosts.rows`.
+
+    ``buffers``: the (H, W, C) and (H, C, W) int16 arrays of the previous frame
+    (:attr:`LearnedCosts.left`, :attr:`LearnedCosts.right_mirrored`), overwritten when
+    their shapes fit, so a stream allocates them once.
+    """
     h, w = left.shape
     c = extractor.net.channels
-    fl = np.empty((h, w, c), np.int16)
-    frm = np.empty((h, c, w), np.int16)
+    if buffers is None or buffers[0].shape != (h, w, c):
+        buffers = (np.empty((h, w, c), np.int16), np.empty((h, c, w), np.int16))
+    fl, frm = buffers
     _unit_quantised(extractor.raw(left), False, fl)
     _unit_quantised(extractor.raw(right), True, frm)
     return LearnedCosts(fl, frm, int(min_disparity), int(weight), census)

@@ -88,6 +88,8 @@ class SgmMatcher:
         self.search_cells = 1.0
         self._kept_total = False
         self._net: FeatureExtractor | None = None
+        # the learned cost's quantised features, kept from frame to frame
+        self._features: tuple[NDArray[np.int16], NDArray[np.int16]] | None = None
 
     @property
     def allocations(self) -> int:
@@ -236,8 +238,10 @@ class SgmMatcher:
             self._net = FeatureExtractor(shipped_features())
         both = _cost_inputs(left, right, p, census) if p.matching_cost == 'census+learned' \
             else None
-        return learned_costs(self._net, left, right, min_disparity=p.min_disparity,
-                             weight=p.learned_weight, census=both)
+        costs = learned_costs(self._net, left, right, min_disparity=p.min_disparity,
+                              weight=p.learned_weight, census=both, buffers=self._features)
+        self._features = (costs.left, costs.right_mirrored)
+        return costs
 
     @property
     def total(self) -> NDArray[np.uint16]:
