@@ -242,8 +242,10 @@ def test_a_stream_keeps_its_feature_buffers_and_its_results() -> None:
     first = matcher.match(left, right).disparity.copy()
     buffers = matcher._features
     again = matcher.match(left, right).disparity
-    assert buffers is not None and matcher._features is not None
-    assert matcher._features[0] is buffers[0] and matcher._features[1] is buffers[1]
+    assert buffers is not None
+    assert matcher._features is not None
+    assert matcher._features[0] is buffers[0]
+    assert matcher._features[1] is buffers[1]
     np.testing.assert_array_equal(first, again)
     fresh = SgmMatcher(SgmParams(disparity_range=16, matching_cost='learned'))
     np.testing.assert_array_equal(fresh.match(left, right).disparity, again)
