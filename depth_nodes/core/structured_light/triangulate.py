@@ -202,12 +202,13 @@ def epipolar_distance(rays: F64, u: F32, v: F32, geometry: ProjectorGeometry) ->
 
 
 def _finish(lam: F64, rays: F64, geometry: ProjectorGeometry) -> F32:
-    """Depth ``lam * ray_z``; NaN where non-finite or not in front of both devices."""
+    """Depth ``lam * ray_z``; NaN where non-finite, beyond float32 or not in front of
+    both devices."""
     depth = lam * rays[..., 2]
-    with np.errstate(invalid='ignore'):
+    with np.errstate(invalid='ignore', over='ignore'):
         points = rays * lam[..., None]
         z_proj = points @ geometry.rotation[2] + geometry.translation[2]
-        bad = ~np.isfinite(depth) | (depth <= 0) | ~(z_proj > 0)
+        bad = ~(depth < np.finfo(np.float32).max) | (depth <= 0) | ~(z_proj > 0)
     return np.where(bad, np.nan, depth).astype(np.float32)
 
 

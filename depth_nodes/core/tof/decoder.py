@@ -90,7 +90,7 @@ class ToFDecoder:
         judged = np.where(flags == 0, range_m, np.nan).astype(np.float32)
         flags[remove_flying_pixels(judged, params.flying_pixel_threshold,
                                    params.jump_edge_threshold, sigma)] |= FLYING
-        with np.errstate(divide='ignore', invalid='ignore'):
+        with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
             relative = sigma / (params.noise_reference * range_m)
             agreement = np.exp(-chi2 / (16.0 * max(len(freqs) - 1, 1)))
             confidence = np.where(flags == 0, agreement / (1.0 + relative * relative), 0.0)
