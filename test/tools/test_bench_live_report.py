@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from depth_nodes.errors import ConfigError
-from depth_nodes.graph.description import GraphConfig, NodeSpec
+from depth_nodes.graph.description import GraphConfig, NodeSpec, load_graph_config
 from depth_nodes.tools.bench.live import (
     CHECKED,
     DISPARITY,
@@ -14,6 +14,7 @@ from depth_nodes.tools.bench.live import (
     OPENCV_STAGES,
     OURS_STAGES,
     POINTS,
+    REPO,
     RIGHT_RECT,
     LiveBench,
     LiveRun,
@@ -59,10 +60,23 @@ def test_header_names_the_paths_and_opencv_runs_the_matching_mode() -> None:
         graph = opencv_graph(config, paths)
         assert [n.plugin for n in graph.nodes] == ['sgm_stereo']  # no cross-check
         assert graph.nodes[0].parameters == {
-            'paths': 5, 'stereo_algorithm': 1, 'sgbm_mode': mode, 'right_view': False,
-            'correlation_window_size': 5, 'P1': 200.0, 'P2': 800.0, 'uniqueness_ratio': 10.0,
-            'prefilter_cap': 63, 'disp12_max_diff': 1, 'speckle_size': 100,
-            'speckle_range': 2}
+            'paths': 5, 'disparity_range': 128, 'stereo_algorithm': 1, 'sgbm_mode': mode,
+            'right_view': False, 'correlation_window_size': 5, 'P1': 200.0, 'P2': 800.0,
+            'uniqueness_ratio': 10.0, 'prefilter_cap': 63, 'disp12_max_diff': 1,
+            'speckle_size': 100, 'speckle_range': 2}
+
+
+def test_opencv_searches_the_same_disparity_range_as_ours() -> None:
+    # the shipped graph leaves disparity_range to the census node's default (128); with
+    # stereo_algorithm 1 the node would take stereo_image_proc's 64: half OpenCV's work
+    shipped = load_graph_config(REPO / 'config' / 'stereo_pipeline.yaml')
+    ours = next(n for n in shipped.nodes if n.plugin == 'sgm_stereo')
+    assert 'disparity_range' not in ours.parameters
+    theirs = next(n for n in opencv_graph(shipped, 5).nodes if n.plugin == 'sgm_stereo')
+    assert theirs.parameters['disparity_range'] == 128
+    ranged = GraphConfig('stereo', [NodeSpec('sgm_stereo', 'sgm_stereo', '/stereo',
+                                             {'disparity_range': 64}, {})])
+    assert opencv_graph(ranged).nodes[0].parameters['disparity_range'] == 64
 
 
 def test_the_bench_watches_every_stage_or_points2_only() -> None:

@@ -35,6 +35,7 @@ from rclpy.utilities import try_shutdown
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import GraphConfig, load_graph_config
+from depth_nodes.nodes.sgm_stereo import CENSUS_DEFAULTS
 from depth_nodes.tools.live.processes import (
     GraphProcesses,
     StereoFeeder,
@@ -150,7 +151,9 @@ def opencv_mode(paths: int) -> str:
 
 def opencv_graph(config: GraphConfig, paths: int = 8) -> GraphConfig:
     """``config`` as stereo_image_proc users run it: StereoSGBM in the SGM node (the mode
-    of :func:`opencv_mode`), no cross-check, the point cloud straight from the disparity."""
+    of :func:`opencv_mode`), no cross-check, the point cloud straight from the disparity.
+    It searches the census matcher's disparity range: with stereo_algorithm 1 the node
+    would otherwise take stereo_image_proc's default range (64), half the work."""
     graph = copy.deepcopy(config)
     graph.nodes = [n for n in graph.nodes if n.plugin != 'cross_check']
     for node in graph.nodes:
@@ -158,6 +161,8 @@ def opencv_graph(config: GraphConfig, paths: int = 8) -> GraphConfig:
             # StereoSGBM with its usual tuning of the shared filters (the census
             # matcher's own values in the config are not the OpenCV user's)
             node.parameters.update(
+                disparity_range=node.parameters.get('disparity_range',
+                                                    CENSUS_DEFAULTS['disparity_range']),
                 stereo_algorithm=1, sgbm_mode=1 if opencv_mode(paths) == 'MODE_HH' else 0,
                 right_view=False,
                 correlation_window_size=5, P1=200.0, P2=800.0, uniqueness_ratio=10.0,
