@@ -56,7 +56,10 @@ setup(
     ],
     extras_require={
         'ros': ROS_WHEELS,
-        'dev': ['pytest', 'ruff', 'mypy', 'colcon-common-extensions', 'catkin_pkg'],
+        # pytest-xdist: `make test` runs the suite on two workers (test/helpers.py gives each
+        # worker its own ROS_DOMAIN_IDs)
+        'dev': ['pytest', 'pytest-xdist', 'ruff', 'mypy', 'colcon-common-extensions',
+                'catkin_pkg'],
         # `depth-nodes process --ray`: bag archives on a Ray cluster (local or existing)
         'cluster': ['ray'],
         # to compare depth_filter with librealsense's filters (tools/evaluation); no node

@@ -6,11 +6,13 @@ import ...`` (fixtures live in the conftest files)."""
 
 from __future__ import annotations
 
+import fcntl
 import itertools
 import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -33,14 +35,79 @@ STEREO_RANGES = {'stereo_vga': 128, 'stereo_qvga_color': 64, 'stereo_qvga_fishey
 REAL_PAIRS = ('teddy', 'cones')
 REAL_DATA = TEST_DIR / 'data' / 'middlebury2003'
 
-# Domain IDs 1..100 are valid everywhere; start at a pid-dependent offset so that two test
-# sessions running at once are unlikely to share one, and never reuse one within a session.
-_DOMAINS = itertools.cycle([1 + (os.getpid() + i) % 100 for i in range(100)])
+
+def _domains() -> list[int]:
+    """This process's ROS_DOMAIN_IDs: 1..200 (valid everywhere), split between the workers
+    of a parallel run (pytest-xdist) so that two workers never share one, each worker's
+    share started at a pid-dependent offset so that two test sessions running at once are
+    unlikely to share one either."""
+    worker = os.environ.get('PYTEST_XDIST_WORKER', 'gw0')
+    count = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    span = 200 // max(count, 1)
+    base = 1 + int(worker.removeprefix('gw') or 0) * span
+    return [base + (os.getpid() + i) % span for i in range(span)]
+
+
+_DOMAINS = itertools.cycle(_domains())
 
 
 def next_domain() -> str:
-    """A ROS_DOMAIN_ID not used before in this test session (until 100 have been)."""
+    """A ROS_DOMAIN_ID not used before in this worker (until its share has been)."""
     return str(next(_DOMAINS))
+
+
+#: Where Fast DDS keeps its shared-memory segments and ports.
+SHM = Path('/dev/shm')
+
+
+def fast_dds_files() -> set[str]:
+    """Fast DDS's files in /dev/shm: segments, ports, their lock files and mutexes."""
+    if not SHM.is_dir():
+        return set()
+    return {p.name for p in SHM.iterdir() if p.name.startswith(('fastrtps_', 'sem.fastrtps_'))}
+
+
+def _held(name: str) -> bool:
+    """Whether a live process holds segment or port ``name``: Fast DDS keeps an flock on
+    ``<name>_el`` for as long as the segment's owner lives."""
+    try:
+        fd = os.open(SHM / f'{name}_el', os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    fcntl.flock(fd, fcntl.LOCK_UN)
+    return False
+
+
+def orphaned(names: set[str]) -> set[str]:
+    """The segments and ports among ``names`` that no live process holds: what a process
+    that died without cleaning up leaves behind. Segments of processes that are still
+    running (another test worker's, say) are not counted; one seen without its lock file
+    is looked at again a moment later, as its owner may be creating or removing it."""
+    def unheld() -> set[str]:
+        return {n for n in names if n.startswith('fastrtps_') and
+                not n.endswith(('_el', '_sl')) and (SHM / n).exists() and not _held(n)}
+
+    first = unheld()
+    if first:
+        time.sleep(0.5)
+    return first & unheld()
+
+
+def held_by(pid: int) -> set[str]:
+    """The Fast DDS segments and ports that process ``pid`` holds (its flocks in
+    /proc/locks on their ``_el`` files)."""
+    inodes = set()
+    with open('/proc/locks') as locks:
+        for line in locks:
+            fields = line.split()  # 1: FLOCK ADVISORY WRITE <pid> <dev>:<inode> 0 EOF
+            if len(fields) > 5 and fields[1] == 'FLOCK' and fields[4] == str(pid):
+                inodes.add(int(fields[5].rsplit(':', 1)[1]))
+    return {p.name.removesuffix('_el') for p in SHM.glob('fastrtps_*_el')
+            if p.stat().st_ino in inodes} if SHM.is_dir() else set()
 
 
 def isolated(env: dict[str, str], domain: str) -> dict[str, str]:

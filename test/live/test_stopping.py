@@ -17,19 +17,13 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from helpers import REAL_DATA, REPO
+from helpers import REAL_DATA, REPO, fast_dds_files, orphaned
 
 from depth_nodes.tools.bags.io import BagReader
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 CLI = [sys.executable, '-m', 'depth_nodes.tools.cli']
-
-
-def _segments() -> set[str]:
-    shm = Path('/dev/shm')
-    return {p.name for p in shm.iterdir() if p.name.startswith('fastrtps_')} if shm.is_dir() \
-        else set()
 
 
 def _start(args: list[str], env: dict[str, str], log: Path, *,
@@ -81,24 +75,24 @@ def test_pipeline_stops_cleanly(tmp_path: Path, ros_env: dict[str, str], sig: in
                                 background: bool) -> None:
     """The composed graph installed no handler of its own: in the background it ignored
     SIGINT, and SIGTERM killed it (-15) with its 64 MiB segment left in /dev/shm."""
-    before = _segments()
+    before = fast_dds_files()
     log = tmp_path / 'pipeline.log'
     proc = _start([*CLI, 'pipeline'], ros_env, log, background=background)
     _wait_for(lambda: 'nodes up' in log.read_text(), proc, log)
     _stop(proc, sig, log)
-    assert not _segments() - before
+    assert not orphaned(fast_dds_files() - before)
 
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_a_node_process_stops_cleanly(tmp_path: Path, ros_env: dict[str, str],
                                       sig: int) -> None:
-    before = _segments()
+    before = fast_dds_files()
     log = tmp_path / 'node.log'
     proc = _start([sys.executable, '-m', 'depth_nodes.nodes.scripts', 'rectify', '--ros-args', '-p',
                    'diagnostics_period:=0.2'], ros_env, log, background=True)
     _wait_for(lambda: _node_listed(ros_env, '/rectify'), proc, log)
     _stop(proc, sig, log)
-    assert not _segments() - before
+    assert not orphaned(fast_dds_files() - before)
 
 
 def _node_listed(env: dict[str, str], name: str) -> bool:
@@ -111,7 +105,7 @@ def test_play_and_record_stop_cleanly_with_a_valid_bag(tmp_path: Path,
                                                       ros_env: dict[str, str]) -> None:
     """Ctrl-C to play printed a traceback (rcl_shutdown already called) and exited 1;
     SIGINT to record an ExternalShutdownException traceback."""
-    before = _segments()
+    before = fast_dds_files()
     from depth_nodes.tools.bags.pairs import PairSource, import_pair
 
     folder = REAL_DATA / 'cones'
@@ -133,7 +127,7 @@ def test_play_and_record_stop_cleanly_with_a_valid_bag(tmp_path: Path,
     count = _consistent(tmp_path / 'rec')
     assert 0 < count < 200
     assert f'recorded {count} messages' in recorded
-    assert not _segments() - before
+    assert not orphaned(fast_dds_files() - before)
 
 
 def test_process_interrupted_leaves_a_valid_bag_of_what_was_done(
@@ -196,7 +190,7 @@ def test_stopping_while_frames_flow_is_quiet(tmp_path: Path, ros_env: dict[str, 
     """Stopped in the middle of the stream: a frame in flight can no longer be published,
     which is the end of the run; it used to be logged as an internal_error (or, at the
     matcher, match_failed) with an RCLError traceback."""
-    before = _segments()
+    before = fast_dds_files()
     log, play_log = tmp_path / 'graph.log', tmp_path / 'play.log'
     proc = _start(command, ros_env, log, background=True)
     # the topics the graph reads (the bag's ground truth has no subscriber to wait for)
@@ -216,4 +210,4 @@ def test_stopping_while_frames_flow_is_quiet(tmp_path: Path, ros_env: dict[str, 
         player.wait(timeout=30)
     for word in ('internal_error', 'match_failed', 'RCLError', 'context is invalid'):
         assert word not in text, text
-    assert not _segments() - before
+    assert not orphaned(fast_dds_files() - before)

@@ -399,11 +399,11 @@ use_large_message_profile()  # as every depth-nodes command does
 if sys.argv[1] == 'worker':
     from depth_nodes.tools.bags.segments import worker_environment
     worker_environment()
-before = set(os.listdir('/dev/shm'))
+from helpers import held_by
 context = Context()
 rclpy.init(args=[], context=context)
 node = rclpy.create_node('probe', context=context)
-print(sorted(f for f in set(os.listdir('/dev/shm')) - before if f.startswith('fastrtps_')))
+print(sorted(held_by(os.getpid())))
 node.destroy_node()
 rclpy.shutdown(context=context)
 """

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-from helpers import REPO, START_TIMEOUT, run_cli
+from helpers import REPO, SHM, START_TIMEOUT, fast_dds_files, orphaned, run_cli
 from rclpy.context import Context
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -39,17 +39,6 @@ def _wait(condition: object, proc: subprocess.Popen[bytes], log: Path) -> None:
         time.sleep(0.05)
 
 
-SHM = Path('/dev/shm')
-
-
-def _shm_segments() -> set[str]:
-    """Fast DDS's files in /dev/shm: segments, the ports of this test's own domain, their
-    mutexes."""
-    if not SHM.is_dir():
-        return set()
-    return {p.name for p in SHM.iterdir() if p.name.startswith(('fastrtps_', 'sem.fastrtps_'))}
-
-
 def test_a_killed_recording_loses_at_most_its_last_second(tmp_path: Path,
                                                           context: Context) -> None:
     assert 2 * FLUSH_AGE_S < 1.0
@@ -57,7 +46,7 @@ def test_a_killed_recording_loses_at_most_its_last_second(tmp_path: Path,
     images = node.create_publisher(Image, '/cam/image_raw', 100)
     infos = node.create_publisher(CameraInfo, '/cam/camera_info', 100)
     log = tmp_path / 'record.log'
-    segments = _shm_segments()
+    segments = fast_dds_files()
     with log.open('wb') as out:
         recorder = subprocess.Popen(
             [sys.executable, '-m', 'depth_nodes.tools.cli', 'record', str(tmp_path / 'rec'),
@@ -92,9 +81,11 @@ def test_a_killed_recording_loses_at_most_its_last_second(tmp_path: Path,
             recorder.wait(timeout=30)
         node.destroy_node()
         # a killed process cannot remove its Fast DDS segment (70 MB in /dev/shm) nor its
-        # ports: what came with the recorder goes with it (the domain is this test's own)
-        for name in _shm_segments() - segments:
-            (SHM / name).unlink(missing_ok=True)
+        # ports: what came with the recorder goes with it (the segments and ports nobody
+        # holds any more, their lock files and mutexes; not another test worker's)
+        for name in orphaned(fast_dds_files() - segments):
+            for left in (name, f'{name}_el', f'{name}_sl', f'sem.{name}_mutex'):
+                (SHM / left).unlink(missing_ok=True)
     assert recorder.returncode == -signal.SIGKILL
     bag = tmp_path / 'rec'
     assert not (bag / 'metadata.yaml').exists()
