@@ -76,10 +76,12 @@ def _held(name: str) -> bool:
         return False
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return False
     except BlockingIOError:
         return True
-    fcntl.flock(fd, fcntl.LOCK_UN)
-    return False
+    finally:
+        os.close(fd)
 
 
 def orphaned(names: set[str]) -> set[str]:
