@@ -93,9 +93,9 @@ def test_echo_summarises_images_and_prints_other_messages(graph: dict[str, str])
     assert re.search(r'^k: \[[-\d.e, ]+\]$', info.stdout, re.MULTILINE), info.stdout
 
 
-def _report_over(verb: str, count: str, env: dict[str, str], messages: int = 40) -> str:
+def _report_over(verb: str, count: str, env: dict[str, str], messages: int = 60) -> str:
     """Run ``topic hz|bw`` until a report covers ``messages`` messages (``count`` finds
-    their number in a line; at most 60 s), then stop it with SIGINT; its whole output. A
+    their number in a line; at most 90 s), then stop it with SIGINT; its whole output. A
     short window measures a burst rather than the stream: under load the player publishes
     late frames back to back (CI once saw 17 frames in 1.1 s, 4.6 MB/s)."""
     proc = subprocess.Popen(
@@ -114,7 +114,7 @@ def _report_over(verb: str, count: str, env: dict[str, str], messages: int = 40)
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
-    covered.wait(60)
+    covered.wait(90)
     proc.send_signal(signal.SIGINT)
     proc.wait(timeout=30)
     reader.join(timeout=30)
