@@ -37,13 +37,15 @@ REAL_DATA = TEST_DIR / 'data' / 'middlebury2003'
 
 
 def _domains() -> list[int]:
-    """This process's ROS_DOMAIN_IDs: 1..200 (valid everywhere), split between the workers
-    of a parallel run (pytest-xdist) so that two workers never share one, each worker's
-    share started at a pid-dependent offset so that two test sessions running at once are
-    unlikely to share one either."""
+    """This process's ROS_DOMAIN_IDs: 1..100, split between the workers of a parallel run
+    (pytest-xdist) so that two workers never share one, each worker's share started at a
+    pid-dependent offset so that two test sessions running at once are unlikely to share
+    one either. Not above 101: Fast DDS's ports for a higher domain fall in Linux's
+    ephemeral range (32768 - 60999), where another socket may hold one (ROS 2's "About
+    Domain ID")."""
     worker = os.environ.get('PYTEST_XDIST_WORKER', 'gw0')
     count = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
-    span = 200 // max(count, 1)
+    span = 100 // max(count, 1)
     base = 1 + int(worker.removeprefix('gw') or 0) * span
     return [base + (os.getpid() + i) % span for i in range(span)]
 
@@ -52,7 +54,8 @@ _DOMAINS = itertools.cycle(_domains())
 
 
 def next_domain() -> str:
-    """A ROS_DOMAIN_ID not used before in this worker (until its share has been)."""
+    """The next ROS_DOMAIN_ID of this worker's share, in turn: one comes round again after
+    as many graphs as the share holds (50 on two workers), long after its graph stopped."""
     return str(next(_DOMAINS))
 
 
