@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
+from depth_nodes.core.geometry.rotation import ROTATION_TOLERANCE, rotation_error
 from depth_nodes.errors import CalibrationError, yaml_problem
 
 PLUMB_BOB = 'plumb_bob'
@@ -35,7 +36,6 @@ DISTORTION_SIZES: dict[str, int] = {PLUMB_BOB: 5, RATIONAL_POLYNOMIAL: 8, EQUIDI
 
 FloatArray = NDArray[np.float64]
 
-_ROTATION_TOL = 1e-6
 _FOCAL_RTOL = 1e-6
 
 
@@ -219,12 +219,11 @@ def validate_camera(model: CameraModel) -> None:
             f'distortion_model {model.distortion_model} needs {expected} coefficients in D, '
             f'got {D.size}'
         )
-    err = float(np.max(np.abs(R @ R.T - np.eye(3))))
-    det = float(np.linalg.det(R))
-    if err > _ROTATION_TOL or abs(det - 1.0) > _ROTATION_TOL:
+    err = rotation_error(R)
+    if err > ROTATION_TOLERANCE:
         raise CalibrationError(
-            f'R is not a rotation: |R R^T - I| = {err:.3g}, det(R) = {det:.6g} '
-            f'(R = {R.ravel().tolist()})'
+            f'R is not a rotation: |R R^T - I| = {err:.3g}, det(R) = '
+            f'{float(np.linalg.det(R)):.6g} (R = {R.ravel().tolist()})'
         )
     if P.any() and (P[0, 0] <= 0 or P[1, 1] <= 0):
         raise CalibrationError(f'P must have fx > 0 and fy > 0, got fx {P[0, 0]}, fy {P[1, 1]}')

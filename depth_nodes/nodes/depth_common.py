@@ -13,12 +13,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.camera import CameraModel
-from depth_nodes.core.depth_image import DEPTH_ENCODINGS, Intrinsics, intrinsics, to_metres
-from depth_nodes.errors import CalibrationError, MessageError, UncalibratedError
-from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model
+from depth_nodes.core.depth_image import DEPTH_ENCODINGS, to_metres
+from depth_nodes.errors import MessageError
 from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import ParamSpec, one_of
-from depth_nodes.ros.transport import MAX_PIXELS, decode_image
+from depth_nodes.ros.transport import decode_image
 
 #: Transports a depth image can arrive by (image_transport's raw and compressedDepth).
 DEPTH_TRANSPORTS = ('raw', 'compressedDepth')
@@ -41,18 +40,8 @@ INVALID_DEPTH = ParamSpec('invalid_depth', 0.0, 'Depth, metres, given to the poi
                           'pixels with no depth (0: they are NaN points)', 0.0, 1.0e6)
 
 
-def _camera(info: Any) -> CameraModel:
-    if not np.any(np.asarray(info.k)) and not np.any(np.asarray(info.p)):
-        raise UncalibratedError('K and P all zero')  # how drivers say: not calibrated
-    return camera_info_to_model(info)
-
-
 class DepthImageNode(DepthNode):
     """A DepthNode with helpers for depth images and single-camera CameraInfos."""
-
-    def __init__(self, node_name: str, **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
-        self._cameras: dict[str, InfoCache[CameraModel]] = {}
 
     def read_depth(self, msg: Any, what: str) -> tuple[NDArray[np.float32], str] | None:
         """A depth image (raw or compressedDepth) as float32 metres, NaN unknown, with its
@@ -86,33 +75,13 @@ class DepthImageNode(DepthNode):
         self.drop('malformed_image', f'{what} is empty ({pixels.shape[1]}x{pixels.shape[0]})')
         return False
 
-    def camera(self, info: Any, what: str,
-               shape: tuple[int, int] | None = None) -> Intrinsics | None:
-        """The intrinsics a CameraInfo gives an image of ``shape`` (scaled when the sizes
-        differ, see :func:`~depth_nodes.core.depth_image.intrinsics`), or None after
-        counting the drop: ``uncalibrated`` (K and P all zero) or ``bad_calibration``
-        (anything else unusable, or an image of more than
-        :data:`~depth_nodes.ros.transport.MAX_PIXELS` pixels)."""
-        try:
-            camera = intrinsics(self.camera_model(info, what), shape)
-            if camera.width * camera.height > MAX_PIXELS:
-                raise CalibrationError(f'its {camera.width}x{camera.height} image has more '
-                                       f'than {MAX_PIXELS} pixels')
-            return camera
-        except UncalibratedError:
-            self.drop('uncalibrated', f'{what} has K and P all zero: the camera is not '
-                      'calibrated')
-        except CalibrationError as exc:
-            self.drop('bad_calibration', f'{what} unusable: {exc}')
-        return None
-
     def camera_model(self, info: Any, what: str) -> CameraModel:
         """The validated camera model of a CameraInfo (built again only when its content
-        changes).
+        changes): :meth:`FrameReader.camera_model
+        <depth_nodes.ros.frames.FrameReader.camera_model>`.
 
         Raises:
             UncalibratedError: K and P all zero.
             CalibrationError: Anything else unusable.
         """
-        cache = self._cameras.setdefault(what, InfoCache(_camera))
-        return cache.get(info)
+        return self.frame_reader.camera_model(info, what)

@@ -39,7 +39,6 @@ confidence image of another size), ``too_small`` (smaller than the decimation),
 from __future__ import annotations
 
 import copy
-import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
@@ -56,25 +55,17 @@ from depth_nodes.core.depth_filter import (
     tof_sigma,
     warm_up,
 )
-from depth_nodes.core.depth_image import Intrinsics, from_metres
-from depth_nodes.core.mvs.geometry import Pose
+from depth_nodes.core.depth_image import from_metres
+from depth_nodes.core.geometry import Intrinsics, Pose
+from depth_nodes.core.stamps import NS_PER_S
 from depth_nodes.nodes.depth_common import QUEUE_SIZE, DepthImageNode, depth_transport
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.params import THREADS, NodeParameters, ParamSpec, one_of, specs_from, validated
-from depth_nodes.ros.poses import PoseInput, PoseWaiter, pose_parameters
 from depth_nodes.ros.workers import use_threads
 
 SETTINGS = tuple(f.name for f in fields(DepthFilterParams))
-NS_PER_S = 1_000_000_000
 #: Seconds between two warnings that the temporal memory started over.
 RESET_LOG_PERIOD_S = 5.0
-
-
-def _pose_parameters() -> list[ParamSpec]:
-    """The pose input's parameters, with ``none`` (a still camera) the default."""
-    specs = pose_parameters(allow_none=True)
-    return [dataclasses.replace(s, default='none') if s.name == 'pose_source' else s
-            for s in specs]
 
 
 PARAMETERS = [
@@ -92,7 +83,6 @@ PARAMETERS = [
               '(relative noise at confidence 0.5)', 1e-4, 1.0),
     ParamSpec('depth_encoding', 'same', 'filtered/image_rect: same (as the input), 32FC1 '
               'metres or 16UC1 millimetres', check=one_of(('same', '32FC1', '16UC1'))),
-    *_pose_parameters(),
     QUEUE_SIZE,
     THREADS,
 ]
@@ -149,8 +139,7 @@ class DepthFilterNode(DepthImageNode):
         self.noise_model = values['noise_model']
         warm_up()  # before subscribing: the first live frame then takes a frame's time
         self.filter = DepthFilter()
-        self.poses = PoseInput(self, values, on_pose=self._resolve)
-        self.waiter: PoseWaiter[_Frame] = PoseWaiter(self, self.poses, self._filter)
+        self.poses = self.add_pose_input(self._filter, allow_none=True, default_source='none')
         self._last_reset_log = -RESET_LOG_PERIOD_S
         self.resets = 0
         self.pub_depth = self.add_output(Image, 'filtered/image_rect')
@@ -173,7 +162,7 @@ class DepthFilterNode(DepthImageNode):
             outputs.append(self.pub_sigma)
         if self.skip_unwanted(*(out.wanted for out in outputs)):
             self.filter.reset()  # nobody listens: the temporal memory goes stale
-            self.waiter.clear()
+            self.poses.clear()
             return
         read = self.read_depth(depth_msg, 'image_rect')
         if read is None:
@@ -191,14 +180,7 @@ class DepthFilterNode(DepthImageNode):
         if sigma is False:
             return
         header = copy.deepcopy(depth_msg.header)
-        frame = _Frame(header, info, encoding, depth, sigma, camera)
-        values = self.params.values
-        if values['pose_source'] == 'none':
-            self._filter(frame, None)
-            return
-        stamp = int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
-        self.waiter.add(stamp, header.frame_id, frame, values['pose_tolerance'],
-                        values['pose_wait'])
+        self.poses.submit(header, _Frame(header, info, encoding, depth, sigma, camera))
 
     def _sigma(self, depth: Any, camera: Intrinsics, noise_msg: Any) -> Any:
         """The depth's standard deviation by the noise model (None: no model); False after
@@ -218,11 +200,6 @@ class DepthFilterNode(DepthImageNode):
             with np.errstate(invalid='ignore'):
                 return np.where(pixels >= 0, pixels, np.nan).astype(np.float32)
         return tof_sigma(depth, pixels, values['noise_reference'])
-
-    def _resolve(self) -> None:
-        """A pose came: filter the waiting frames whose pose is now known."""
-        values = self.params.values
-        self.waiter.resolve(values['pose_tolerance'], values['pose_wait'])
 
     # ------------------------------------------------------------------ work
     def _filter(self, frame: _Frame, pose: Pose | None) -> None:
@@ -261,16 +238,5 @@ class DepthFilterNode(DepthImageNode):
     # ------------------------------------------------------------------ hooks
     def on_time_jump(self) -> None:
         """The stamps went back (a looping bag): start over."""
-        self.waiter.discard('time_jump', 'discarded when the stamps jumped back')
         self.filter.reset()
-        self.poses.clear()
         self._reset('the stamps jumped back')
-
-    def holds_input(self) -> bool:
-        """Frames wait for their pose."""
-        return super().holds_input() or bool(self.waiter)
-
-    def finish_stream(self) -> None:
-        """The stream ended: frames still waiting for a pose are ``stream_ended``."""
-        super().finish_stream()
-        self.waiter.discard('stream_ended', 'when the stream ended')

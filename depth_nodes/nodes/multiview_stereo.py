@@ -33,8 +33,13 @@ swept against them: what one side hides the other shows), with that image's stam
 
 Parameters: the sweep's (``min_depth``, ``max_depth``, ``planes``, ``best_views``, census and
 intensity costs, ``P1``, ``P2``, ``paths``, ...) and the stream's (keyframes, ``delay``,
-``depth_filter``, the geometric check) change at runtime, from the next image, with the
-core's validation; the inputs and the pose source are read at start-up.
+``temporal_filter``, the geometric check) change at runtime, from the next image, with the
+core's validation; the inputs and the pose source are read at start-up. ``depth_filter``,
+the old name of ``temporal_filter``, is still taken, with a warning.
+
+Poses come through the node base's pose input (:mod:`depth_nodes.ros.poses`): a single
+wild pose (a stamp an hour ahead, a 100 m jump) costs at most its own frame; it is dropped
+as ``bad_pose`` and the filter carries on.
 
 Outputs are computed only while subscribed (lazy), or always offline; a node nobody
 listens to forgets its keyframes and filter.
@@ -55,16 +60,18 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from depth_nodes.core.depth_image import Intrinsics, depth_to_points, intrinsics
+from depth_nodes.core.depth_image import depth_to_points
+from depth_nodes.core.geometry import Intrinsics, Pose
 from depth_nodes.core.mvs.cost import MAX_SOURCES
-from depth_nodes.core.mvs.geometry import Pose
+from depth_nodes.core.mvs.fusion import FILTERS
 from depth_nodes.core.mvs.matcher import MvsParams
 from depth_nodes.core.mvs.stream import Frame, MvsStream, NoDepth, StreamDepth, StreamParams
 from depth_nodes.core.reproject import depth_to_millimetres
-from depth_nodes.errors import ArgumentError, CalibrationError, ConfigError
-from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model
+from depth_nodes.core.stamps import stamp_ns
+from depth_nodes.errors import ArgumentError, ConfigError
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import (
@@ -76,13 +83,13 @@ from depth_nodes.ros.params import (
     specs_from,
 )
 from depth_nodes.ros.pointcloud import build_pointcloud
-from depth_nodes.ros.poses import PoseInput, PoseWaiter, mount_pose, pose_parameters
 from depth_nodes.ros.workers import use_threads
 
 SWEEP = tuple(f.name for f in fields(MvsParams))
 STREAM = tuple(f.name for f in fields(StreamParams))
 EXTRA_FIELDS = ('confidence', 'depth_std')
-NS_PER_S = 1_000_000_000
+#: Old parameter names still taken for a release: {old: new}.
+RENAMED = {'depth_filter': 'temporal_filter'}
 
 
 def _check_fields(value: str) -> str | None:
@@ -94,7 +101,6 @@ def _check_fields(value: str) -> str | None:
 
 PARAMETERS = [
     IMAGE_TRANSPORT,
-    *pose_parameters(allow_none=True),
     ParamSpec('cameras', [''], 'A rig: the namespaces of its synchronised cameras (each with '
               'image_rect and camera_info), e.g. [left, centre, right]; [\'\'] or []: one camera '
               '(image_rect, camera_info)', read_only=True),
@@ -105,6 +111,9 @@ PARAMETERS = [
               read_only=True),
     *specs_from(MvsParams, SWEEP),
     *specs_from(StreamParams, STREAM),
+    ParamSpec('depth_filter', '', 'Deprecated: the old name of temporal_filter (empty: not '
+              'set); a value given here wins, with a warning',
+              check=one_of(('', *FILTERS, 'none'))),
     ParamSpec('depth_encoding', '32FC1', 'depth: 32FC1 metres (NaN unknown) or 16UC1 '
               'millimetres (0 unknown)', check=one_of(('32FC1', '16UC1'))),
     ParamSpec('extra_fields', '', 'Comma-separated extra float32 fields of points2: '
@@ -120,7 +129,8 @@ def _sweep(values: Mapping[str, Any]) -> MvsParams:
 
 
 def _stream(values: Mapping[str, Any]) -> StreamParams:
-    return StreamParams(**{name: values[name] for name in STREAM})
+    renamed = {new: values[old] for old, new in RENAMED.items() if values[old]}
+    return StreamParams(**{name: renamed.get(name, values[name]) for name in STREAM})
 
 
 def _check_values(values: Mapping[str, Any]) -> str | None:
@@ -133,8 +143,8 @@ def _check_values(values: Mapping[str, Any]) -> str | None:
 
 
 @dataclass
-class _Waiting:
-    """An image set waiting for its pose."""
+class _Views:
+    """An image set read and checked, waiting for its pose."""
 
     stamp: int
     header: Any
@@ -153,14 +163,13 @@ class MultiViewStereoNode(DepthNode):
         self.cameras = [c for c in values['cameras'] if c]
         self.reference = values['reference_camera']
         self.extrinsics = self._extrinsics(values)
-        if values['pose_source'] == 'none' and not self.cameras:
+        self.poses = self.add_pose_input(self._process, allow_none=True)
+        if self.poses.source == 'none' and not self.cameras:
             raise ConfigError('pose_source none needs a rig (cameras): one camera without '
                               'poses has no baseline')
-        self.poses = PoseInput(self, values, on_pose=self._resolve)
-        self.waiter: PoseWaiter[_Waiting] = PoseWaiter(self, self.poses, self._process)
+        self._warn_renamed(values)
+        self.add_on_set_parameters_callback(self._on_renamed)
         self.stream = MvsStream(_sweep(values), _stream(values))
-        self._infos: dict[str, InfoCache[Any]] = {}
-        self._headers: dict[int, Any] = {}
         self.pub_depth = self.add_output(Image, 'depth')
         self.pub_info = self.add_output(CameraInfo, 'depth/camera_info')
         self.pub_sigma = self.add_output(Image, 'sigma')
@@ -189,9 +198,19 @@ class MultiViewStereoNode(DepthNode):
             raise ConfigError(f'rig_extrinsics needs 7 numbers per camera ({7 * len(self.cameras)}'
                               f' for {len(self.cameras)}), got {len(numbers)}')
         try:
-            return [mount_pose(numbers[7 * k:7 * k + 7]) for k in range(len(self.cameras))]
+            return [Pose.from_values(numbers[7 * k:7 * k + 7]) for k in range(len(self.cameras))]
         except ArgumentError as exc:
             raise ConfigError(f'rig_extrinsics: {exc}') from None
+
+    def _warn_renamed(self, values: Mapping[str, Any]) -> None:
+        for old, new in RENAMED.items():
+            if values.get(old):
+                self.get_logger().warning(f'parameter {old} is deprecated: it is now {new} '
+                                          f'({old}: {values[old]} taken as {new})')
+
+    def _on_renamed(self, params: list[Any]) -> SetParametersResult:
+        self._warn_renamed({p.name: p.value for p in params if p.name in RENAMED})
+        return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ inputs
     def on_images(self, *msgs: Any) -> None:
@@ -200,7 +219,7 @@ class MultiViewStereoNode(DepthNode):
                    self.pub_converged, self.pub_points)
         if self.skip_unwanted(*(out.wanted for out in outputs)):
             self.stream.reset()  # nobody listens: the keyframes and the filter go stale
-            self.waiter.clear()
+            self.poses.clear()
             return
         views = []
         for k in range(len(msgs) // 2):
@@ -209,61 +228,37 @@ class MultiViewStereoNode(DepthNode):
             grey = self.gray_image(image, what)
             if grey is None:
                 return
-            camera = self._camera(info, what.replace('image_rect', 'camera_info'),
-                                  grey.shape)
+            camera = self.camera(info, what.replace('image_rect', 'camera_info'),
+                                 (int(grey.shape[0]), int(grey.shape[1])))
             if camera is None:
                 return
             views.append((grey, camera, info))
-        header = msgs[2 * self.reference if self.cameras else 0].header
-        stamp = int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
-        self.waiter.add(stamp, header.frame_id, _Waiting(stamp, copy.deepcopy(header), views),
-                        self.params.values['pose_tolerance'], self.params.values['pose_wait'])
-
-    def _camera(self, info: Any, what: str, shape: tuple[int, ...]) -> Intrinsics | None:
-        cache = self._infos.setdefault(what, InfoCache(camera_info_to_model))
-        if not np.any(np.asarray(info.k)) and not np.any(np.asarray(info.p)):
-            self.drop('uncalibrated', f'{what} has K and P all zero: the camera is not '
-                      'calibrated')
-            return None
-        try:
-            return intrinsics(cache.get(info), (int(shape[0]), int(shape[1])))
-        except CalibrationError as exc:
-            self.drop('bad_calibration', f'{what} unusable: {exc}')
-        return None
-
-    def _resolve(self) -> None:
-        """A pose came: process the waiting image sets whose pose is now known."""
-        values = self.params.values
-        self.waiter.resolve(values['pose_tolerance'], values['pose_wait'])
+        header = copy.deepcopy(msgs[2 * self.reference if self.cameras else 0].header)
+        self.poses.submit(header, _Views(stamp_ns(header), header, views))
 
     # ------------------------------------------------------------------ work
-    def _process(self, item: _Waiting, body: Pose) -> None:
+    def _process(self, item: _Views, body: Pose | None) -> None:
         values = self.params.values
         use_threads(values['threads'])
         sweep, stream = _sweep(values), _stream(values)
         if (sweep, stream) != (self.stream.params, self.stream.stream):
             self.stream.set_params(sweep, stream)
-        frames = [Frame(grey, camera, body.compose(mount), item.stamp)
-                  for (grey, camera, _), mount in zip(item.views, self.extrinsics, strict=True)]
-        reference = frames[self.reference] if self.cameras else frames[0]
-        rig = [f for k, f in enumerate(frames) if self.cameras and k != self.reference]
-        self._headers[item.stamp] = (item.header, item.views[self.reference if self.cameras
-                                                            else 0][2])
-        self._publish(self.stream.process(reference, rig))
+        body = body or Pose()  # a rig that does not move
+        reference = self.reference if self.cameras else 0
+        frames = [Frame(grey, camera, body.compose(mount), item.stamp,
+                        (item.header, info) if k == reference else None)
+                  for k, ((grey, camera, info), mount) in
+                  enumerate(zip(item.views, self.extrinsics, strict=True))]
+        rig = [f for k, f in enumerate(frames) if self.cameras and k != reference]
+        self._publish(self.stream.process(frames[reference], rig))
 
     def _publish(self, result: StreamDepth | NoDepth | None) -> None:
         if result is None:
             return
-        stamp = result.frame.stamp_ns if result.frame is not None else None
-        header, info = self._headers.pop(stamp, (None, None)) if stamp is not None else \
-            (None, None)
-        for old in [s for s in self._headers if stamp is not None and s < stamp]:
-            del self._headers[old]
         if isinstance(result, NoDepth):
             self.drop(result.reason, result.detail)
             return
-        if header is None or info is None:  # a frame this node never gave the stream
-            raise RuntimeError(f'no header kept for the depth at {stamp}')
+        header, info = result.frame.context
         values = self.params.values
         camera = result.frame.camera
         if self.pub_depth.wanted:
@@ -291,19 +286,15 @@ class MultiViewStereoNode(DepthNode):
     # ------------------------------------------------------------------ hooks
     def on_time_jump(self) -> None:
         """The stamps went back (a looping bag): start over."""
-        self.waiter.discard('time_jump', 'discarded when the stamps jumped back')
-        self._headers.clear()
         self.stream.reset()
-        self.poses.clear()
 
     def holds_input(self) -> bool:
         """Images wait for a pose, or for later images (``delay``)."""
-        return super().holds_input() or bool(self.waiter) or self.stream.waiting > 0
+        return super().holds_input() or self.stream.waiting > 0
 
     def finish_stream(self) -> None:
         """The stream ended: the delayed images get their depth from the later images there
         are; those still waiting for a pose are counted as ``stream_ended``."""
         super().finish_stream()
-        self.waiter.discard('stream_ended', 'when the stream ended')
         for result in self.stream.flush():
             self._publish(result)

@@ -17,17 +17,12 @@ from __future__ import annotations
 from typing import Any
 
 from geometry_msgs.msg import TransformStamped
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from depth_nodes.core.transforms import camera_transform
+from depth_nodes.core.geometry import camera_transform
 from depth_nodes.errors import ConfigError
 from depth_nodes.ros.node import DepthNode
 from depth_nodes.ros.params import NodeParameters, ParamSpec
-
-try:  # every ROS 2 install has tf2_msgs, the PyPI wheels do not: the node then says so
-    from tf2_msgs.msg import TFMessage
-except ImportError:
-    TFMessage = None
+from depth_nodes.ros.poses import TF_STATIC_QOS, TFMessage
 
 PARAMETERS = [
     ParamSpec('parent_frame', 'base_link', 'Frame the camera is mounted on', read_only=True),
@@ -40,11 +35,6 @@ PARAMETERS = [
     ParamSpec('optical', True, 'child_frame is an optical frame (z forward, x right, y down): '
               'add the body-to-optical rotation', read_only=True),
 ]
-
-#: QoS of /tf_static, as tf2_ros's StaticTransformBroadcaster.
-TF_STATIC_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
 
 def transform(values: Any, stamp: Any) -> TransformStamped:
     """The TransformStamped of a parameter snapshot."""

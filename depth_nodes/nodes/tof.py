@@ -49,7 +49,8 @@ import numpy as np
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from depth_nodes.core.camera import CameraModel
-from depth_nodes.core.depth_image import depth_to_points, from_metres, intrinsics
+from depth_nodes.core.depth_image import depth_to_points, from_metres
+from depth_nodes.core.geometry import intrinsics
 from depth_nodes.core.tof import ToFDecoder, ToFParams, check_frequencies
 from depth_nodes.errors import ArgumentError, CalibrationError, MessageError
 from depth_nodes.ros.camera_info import InfoCache, camera_info_to_model, model_to_camera_info

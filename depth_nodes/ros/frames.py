@@ -1,12 +1,16 @@
 """Reading a frame's inputs, every failure a counted drop: image pixels (raw or
-compressed) that must fit the frame, camera images as grey, and the stereo geometry of a
-CameraInfo pair (converted again only when one changes)."""
+compressed) that must fit the frame, camera images as grey, a single camera's intrinsics
+and the stereo geometry of a CameraInfo pair (each converted again only when its
+CameraInfo changes)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from depth_nodes.core.camera import StereoModel
+import numpy as np
+
+from depth_nodes.core.camera import CameraModel, StereoModel
+from depth_nodes.core.geometry import Intrinsics, intrinsics
 from depth_nodes.errors import (
     CalibrationError,
     DecodeError,
@@ -16,9 +20,9 @@ from depth_nodes.errors import (
     UnsupportedFormatError,
 )
 from depth_nodes.ros.accounting import DropCounter
-from depth_nodes.ros.camera_info import StereoInfoCache
+from depth_nodes.ros.camera_info import InfoCache, StereoInfoCache, camera_info_to_model
 from depth_nodes.ros.image import CAMERA_ENCODINGS
-from depth_nodes.ros.transport import decode_image, gray_image, image_pixels
+from depth_nodes.ros.transport import MAX_PIXELS, decode_image, gray_image, image_pixels
 
 
 def drop_reason(exc: MessageError) -> str:
@@ -45,6 +49,7 @@ class FrameReader:
     def __init__(self, drops: DropCounter) -> None:
         self._drops = drops
         self._stereo_cache: StereoInfoCache | None = None
+        self._cameras: dict[str, InfoCache[CameraModel]] = {}
 
     def decoding_failed(self, exc: MessageError, what: str) -> None:
         """Count an image that could not be read, under :func:`drop_reason`."""
@@ -97,6 +102,37 @@ class FrameReader:
             self.decoding_failed(exc, what)
         return None
 
+    def camera(self, info: Any, what: str,
+               shape: tuple[int, int] | None = None) -> Intrinsics | None:
+        """The intrinsics a CameraInfo gives an image of ``shape`` (scaled when the sizes
+        differ, see :func:`~depth_nodes.core.geometry.pinhole.intrinsics`), or None after
+        counting the drop: ``uncalibrated`` (K and P all zero) or ``bad_calibration``
+        (anything else unusable, or an image of more than
+        :data:`~depth_nodes.ros.transport.MAX_PIXELS` pixels)."""
+        try:
+            camera = intrinsics(self.camera_model(info, what), shape)
+            if camera.width * camera.height > MAX_PIXELS:
+                raise CalibrationError(f'its {camera.width}x{camera.height} image has more '
+                                       f'than {MAX_PIXELS} pixels')
+            return camera
+        except UncalibratedError:
+            self._drops.drop('uncalibrated', f'{what} has K and P all zero: the camera is '
+                             'not calibrated')
+        except CalibrationError as exc:
+            self._drops.drop('bad_calibration', f'{what} unusable: {exc}')
+        return None
+
+    def camera_model(self, info: Any, what: str) -> CameraModel:
+        """The validated camera model of a CameraInfo (built again only when its content
+        changes).
+
+        Raises:
+            UncalibratedError: K and P all zero.
+            CalibrationError: Anything else unusable.
+        """
+        cache = self._cameras.setdefault(what, InfoCache(_camera))
+        return cache.get(info)
+
     def stereo_model(self, left_info: Any, right_info: Any) -> StereoModel | None:
         """The stereo geometry of a CameraInfo pair (converted again only when one changes),
         or None after counting the drop: ``uncalibrated`` (a K all zero) or
@@ -110,3 +146,9 @@ class FrameReader:
         except CalibrationError as exc:
             self._drops.drop('bad_calibration', f'camera_info unusable: {exc}')
         return None
+
+
+def _camera(info: Any) -> CameraModel:
+    if not np.any(np.asarray(info.k)) and not np.any(np.asarray(info.p)):
+        raise UncalibratedError('K and P all zero')  # how drivers say: not calibrated
+    return camera_info_to_model(info)

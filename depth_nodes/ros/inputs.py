@@ -22,14 +22,10 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import Image
 
+from depth_nodes.core.stamps import NS_PER_S, STAMP_RESET_S, stamp_ns
 from depth_nodes.ros.accounting import Accounting
 from depth_nodes.ros.sync import ApproximateTimeSynchronizer, ExactTimeSynchronizer
 from depth_nodes.ros.transport import transport_topic, transport_type
-
-#: A stamp this many seconds or more older than the last one on its topic starts the topic
-#: over (a looping bag, a restarted driver) instead of being dropped as out of order.
-STAMP_RESET_S = 1.0
-NS_PER_S = 1_000_000_000
 
 Synchronizer = ExactTimeSynchronizer | ApproximateTimeSynchronizer
 
@@ -49,11 +45,12 @@ class InputSet:
     Args:
         node: The node subscribing (topic resolution, subscriptions, its logger).
         accounting: The node's counters (messages received, drops, frame times).
-        on_time_jump: Called after the stamps jumped back and the inputs started over.
+        on_time_jump: Called with the new stamp (ns) after the stamps jumped back and the
+            inputs started over.
     """
 
     def __init__(self, node: Node, accounting: Accounting,
-                 on_time_jump: Callable[[], None]) -> None:
+                 on_time_jump: Callable[[int | None], None]) -> None:
         self._node = node
         self._accounting = accounting
         self._on_time_jump = on_time_jump
@@ -164,6 +161,14 @@ class InputSet:
                     'time_jump', f'{lost} frame(s) waiting for their partners were '
                     'discarded when the stamps jumped back', count=lost)
 
+    def restart(self, stamp: int | None, why: str) -> None:
+        """Start the node over from ``stamp`` (ns): log ``why``, :meth:`start_over`, then
+        call the node's time-jump handler. Used when an input's stamps jump back, and by a
+        pose input whose poses do."""
+        self._node.get_logger().info(f'{why}: starting over')
+        self.start_over(stamp)
+        self._accounting.guarded(self._on_time_jump, stamp, where='on_time_jump')
+
     def holds(self) -> bool:
         """True while a message waits for its partners in a synchroniser."""
         return any(sync.queued for sync, _ in self._syncs)
@@ -201,18 +206,15 @@ class InputSet:
         header = getattr(msg, 'header', None)
         if header is None:
             return True
-        stamp = header.stamp.sec * NS_PER_S + header.stamp.nanosec
+        stamp = stamp_ns(header)
         last = self._last_stamp.get(topic)
         self._last_stamp[topic] = stamp if last is None else max(stamp, last)
         if last is None or stamp > last:
             return True
-        if last - stamp >= STAMP_RESET_S * 1e9:
-            self._node.get_logger().info(
-                f'{topic}: stamps jumped back by {(last - stamp) / 1e9:.3f} s (a looping bag '
-                'or a restarted source): starting over')
-            self.start_over(stamp)
+        if last - stamp >= STAMP_RESET_S * NS_PER_S:
+            self.restart(stamp, f'{topic}: stamps jumped back by {(last - stamp) / NS_PER_S:.3f}'
+                         ' s (a looping bag or a restarted source)')
             self._last_stamp[topic] = stamp
-            self._accounting.guarded(self._on_time_jump, where='on_time_jump')
             return True
         self._accounting.drop('stamp_out_of_order', f'{topic}: stamp {stamp / 1e9:.9f} s is '
                               f'not newer than the last one, {last / 1e9:.9f} s')

@@ -13,8 +13,12 @@ on the first three):
   by reason and logs a throttled warning naming the reason; an exception a callback did
   not expect is counted as an ``internal_error`` drop (:mod:`~depth_nodes.ros.accounting`);
 * every input message is counted and its stamp checked; stamps that jump back by
-  :data:`~depth_nodes.ros.inputs.STAMP_RESET_S` or more (a looping bag) start the inputs
+  :data:`~depth_nodes.core.stamps.STAMP_RESET_S` or more (a looping bag) start the inputs
   over and call :meth:`DepthNode.on_time_jump`;
+* camera poses come through :meth:`DepthNode.add_pose_input` (odometry, PoseStamped or tf,
+  the frames waiting for them, their drops and time jumps: :mod:`~depth_nodes.ros.poses`),
+  transforms between frames through :meth:`DepthNode.add_tf_input`; a node never
+  subscribes to poses itself;
 * outputs are lazy, as image_pipeline's nodes: a node computes an output only while it is
   :attr:`Output.wanted <depth_nodes.ros.outputs.Output.wanted>` (subscribed, or always
   offline); a frame no output wants is skipped (:meth:`DepthNode.skip_unwanted`), counted
@@ -34,7 +38,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
@@ -43,13 +47,18 @@ from rclpy.qos import QoSProfile
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from depth_nodes.core.camera import StereoModel
+from depth_nodes.core.geometry import Intrinsics, Pose
+from depth_nodes.core.stamps import STAMP_RESET_S
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.accounting import Accounting
 from depth_nodes.ros.diagnostics import DIAGNOSTICS_TOPIC, node_status
 from depth_nodes.ros.frames import FrameReader
-from depth_nodes.ros.inputs import STAMP_RESET_S, InputSet, InputSpec, Synchronizer
+from depth_nodes.ros.inputs import InputSet, InputSpec, Synchronizer
 from depth_nodes.ros.outputs import PUBLISHER_DEPTH, Output, Sink
+from depth_nodes.ros.poses import PoseInput, TfInput
 from depth_nodes.ros.run import run_node
+
+T = TypeVar('T')
 
 __all__ = ['DIAGNOSTICS_TOPIC', 'PUBLISHER_DEPTH', 'STAMP_RESET_S', 'DepthNode', 'InputSpec',
            'Output', 'Sink', 'run_node']
@@ -74,8 +83,8 @@ class DepthNode(Node):
         #: The offline harness's sink: installed, every output goes to it, not to DDS.
         self.sink: Sink | None = None
         self.accounting = Accounting(lambda: self.get_logger(), lambda: self.stopping)
-        # late-bound: a hook set on the instance (a test counting the jumps) is called too
-        self.input_set = InputSet(self, self.accounting, lambda: self.on_time_jump())
+        self.input_set = InputSet(self, self.accounting, self._inputs_restarted)
+        self.pose_inputs: list[PoseInput[Any]] = []
         self.frame_reader = FrameReader(self)
         self.inputs: list[InputSpec] = self.input_set.specs
         self.outputs: dict[str, Output] = {}
@@ -157,6 +166,33 @@ class DepthNode(Node):
         self.outputs[out.topic] = out
         return out
 
+    def add_pose_input(self, process: Callable[[T, Pose | None], None], *,
+                       allow_none: bool, default_source: str = 'odometry') -> PoseInput[T]:
+        """The camera's poses: declares the pose parameters (``pose_source``,
+        ``pose_tolerance``, ...), subscribes to the source, and calls ``process(item, pose)``
+        for each frame handed to :meth:`PoseInput.submit <depth_nodes.ros.poses.PoseInput.submit>`
+        once its pose is known, in stamp order (``pose`` None with ``pose_source: none``).
+        Frames without a pose are counted drops; the waiting frames are dropped on a time
+        jump and at the end of the stream, and forgotten while nobody listens
+        (:meth:`PoseInput.clear <depth_nodes.ros.poses.PoseInput.clear>`).
+
+        Raises:
+            ConfigError: A start-up value refused, or ``pose_source: tf`` without tf2_msgs.
+        """
+        poses: PoseInput[T] = PoseInput(self, process, allow_none=allow_none,
+                                        default_source=default_source)
+        self.pose_inputs.append(poses)
+        return poses
+
+    def add_tf_input(self) -> TfInput:
+        """``/tf`` and ``/tf_static`` in a transform tree (look up the transform between two
+        frames with :meth:`TfInput.lookup <depth_nodes.ros.poses.TfInput.lookup>`).
+
+        Raises:
+            ConfigError: tf2_msgs is not installed (the PyPI wheels have none).
+        """
+        return TfInput(self)
+
     @property
     def callback_is_frame_time(self) -> bool:
         """The time a callback spends when it publishes is the frame's processing time. A
@@ -179,23 +215,31 @@ class DepthNode(Node):
 
     # ------------------------------------------------------------------ hooks
 
+    def _inputs_restarted(self, stamp: int | None) -> None:
+        for poses in self.pose_inputs:
+            poses.on_time_jump(stamp)
+        self.on_time_jump()
+
     def on_time_jump(self) -> None:
         """Hook: an input's stamps jumped back by :data:`STAMP_RESET_S` or more (a looping
-        bag, a restarted driver). Called after the base class has forgotten its stamp
-        history and emptied its synchronisers; a node with state of its own (a temporal
-        filter) resets it here. The default does nothing."""
+        bag, a restarted driver), or a pose input's did. Called after the base class has
+        forgotten its stamp history, emptied its synchronisers and dropped the frames
+        waiting for a pose; a node with state of its own (a temporal filter) resets it
+        here. The default does nothing."""
 
     def holds_input(self) -> bool:
         """Hook: True while a message waits for its partners (in a synchroniser, or in a
         node's own state). `process` on several workers hands a segment over only where no
         node holds anything. A node with state of its own extends it, calling super()."""
-        return self.input_set.holds()
+        return self.input_set.holds() or any(len(poses) for poses in self.pose_inputs)
 
     def finish_stream(self) -> None:
         """Hook: the input stream ended (the offline harness calls this after the last
         message): count what the node still holds, which no later message can complete, as
         ``stream_ended`` drops. A node with state of its own extends it, calling super()."""
         self.input_set.finish()
+        for poses in self.pose_inputs:
+            poses.discard('stream_ended', 'when the stream ended')
 
     # ------------------------------------------------------------------ accounting
 
@@ -249,6 +293,12 @@ class DepthNode(Node):
         """A camera image (raw or compressed, any camera encoding) as one grey channel, or
         None after counting the drop (see :meth:`decoding_failed`)."""
         return self.frame_reader.gray_image(msg, what)
+
+    def camera(self, info: Any, what: str,
+               shape: tuple[int, int] | None = None) -> Intrinsics | None:
+        """The intrinsics a CameraInfo gives an image of ``shape``, or None after counting
+        the drop: see :meth:`FrameReader.camera <depth_nodes.ros.frames.FrameReader.camera>`."""
+        return self.frame_reader.camera(info, what, shape)
 
     def stereo_model(self, left_info: Any, right_info: Any) -> StereoModel | None:
         """The stereo geometry of a CameraInfo pair (converted again only when one changes),

@@ -1,35 +1,50 @@
-"""Camera poses from what a robot publishes: a visual odometry's ``nav_msgs/Odometry``, a
-SLAM system's ``geometry_msgs/PoseStamped``, or ``/tf`` and ``/tf_static`` (where
-tf2_msgs is installed: a ROS install; the PyPI wheels have none).
+"""Poses and transforms from what a robot publishes, for the node base: a visual odometry's
+``nav_msgs/Odometry``, a SLAM system's ``geometry_msgs/PoseStamped``, or ``/tf`` and
+``/tf_static`` (where tf2_msgs is installed: a ROS install; the PyPI wheels have none).
 
-:class:`PoseInput` subscribes to the chosen source on a node and answers, for an image's
-stamp, the camera's optical frame in the world (:mod:`depth_nodes.core.mvs.poses`: the
-nearest pose within a tolerance, never a guess). A pose message that is not a rigid
-transform (NaN, a zero quaternion) is a counted ``bad_pose`` drop.
+A node never subscribes to poses itself: it calls :meth:`DepthNode.add_pose_input
+<depth_nodes.ros.node.DepthNode.add_pose_input>` with the function that processes a frame,
+and hands each frame to :meth:`PoseInput.submit`. The :class:`PoseInput` owns the rest:
 
-With odometry or a pose topic, the published pose is the body's (its ``child_frame_id``,
-or the PoseStamped's own frame): ``camera_in_body`` places the camera's optical frame in it
+* the parameters (:func:`pose_parameters`: the source, the frames, the tolerances, the
+  limits of a plausible step), read through their own snapshot;
+* the subscription to the chosen source, and the poses kept
+  (:class:`~depth_nodes.core.geometry.timed.PoseHistory`, or the tf tree), each looked up
+  at a frame's stamp within ``pose_tolerance``, never a guess;
+* the frames waiting for their pose, handed to the node in stamp order once it is known
+  (a frame waits while the frames after it span at most ``pose_wait`` seconds);
+* the drops: ``no_pose``, ``pose_timeout``, ``no_transform``, and ``bad_pose`` for a pose
+  message that is not a rigid transform or that the history judged wild (a stamp an hour
+  ahead, a 100 m jump: it costs at most its own frame, and the stream carries on);
+* starting over: when the inputs' stamps jump back (a looping bag), or the poses' own
+  stamps do and the next pose confirms it, the poses and the waiting frames are dropped
+  and the node's ``on_time_jump`` hook runs, once.
+
+With odometry or a pose topic, the published pose is the body's (its ``child_frame_id``, or
+the PoseStamped's own frame): ``camera_in_body`` places the camera's optical frame in it
 (identity when the pose is the camera's own). With tf, the lookup chains the edges between
 ``world_frame`` and the image's frame id (or ``camera_frame``), each moving edge taken at
-the image's stamp.
+the image's stamp. :class:`TfInput` alone (``register_depth``) keeps the tf tree and looks
+up the latest transform between two frames.
 """
 
 from __future__ import annotations
 
-import math
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 
-from depth_nodes.core.mvs.geometry import Pose
-from depth_nodes.core.mvs.poses import PoseHistory, PoseMiss, TimedTransforms
+from depth_nodes.core.geometry import Added, Pose, PoseHistory, PoseMiss, TransformTree
+from depth_nodes.core.stamps import NS_PER_S, stamp_ns
 from depth_nodes.errors import ArgumentError, ConfigError
-from depth_nodes.ros.params import ParamSpec, one_of
+from depth_nodes.ros.params import NodeParameters, ParamSpec, one_of
+
+if TYPE_CHECKING:
+    from depth_nodes.ros.node import DepthNode
 
 try:  # optional: on a ROS install only
     from nav_msgs.msg import Odometry
@@ -40,34 +55,36 @@ try:  # a ROS install only (not on PyPI)
 except ImportError:
     TFMessage = None
 
-__all__ = ['POSE_SOURCES', 'PoseInput', 'PoseWaiter', 'pose_parameters']
+__all__ = ['POSE_SOURCES', 'TF_STATIC_QOS', 'PoseInput', 'TFMessage', 'TfInput',
+           'pose_parameters']
 
 T = TypeVar('T')
 
 POSE_SOURCES = ('odometry', 'pose', 'tf', 'none')
-NS_PER_S = 1_000_000_000
-#: /tf_static is latched (transient local), as tf2 publishes it.
+#: /tf_static is latched (transient local), as tf2 publishes and reads it.
 TF_STATIC_QOS = QoSProfile(depth=100, durability=QoSDurabilityPolicy.TRANSIENT_LOCAL,
                            reliability=QoSReliabilityPolicy.RELIABLE)
+#: /tf's depth, as tf2's listener subscribes.
+TF_DEPTH = 100
 
 
 def _check_mount(value: Any) -> str | None:
     try:
-        mount_pose(value)
+        Pose.from_values(value)
     except ArgumentError as exc:
         return str(exc)
     return None
 
 
-def pose_parameters(*, allow_none: bool) -> list[ParamSpec]:
+def pose_parameters(*, allow_none: bool, default_source: str = 'odometry') -> list[ParamSpec]:
     """The parameters of a node's pose input (``allow_none``: ``pose_source: none`` is
-    allowed, for a rig that does not move)."""
+    allowed: a still camera, or a rig that does not move)."""
     sources = POSE_SOURCES if allow_none else POSE_SOURCES[:-1]
     return [
-        ParamSpec('pose_source', 'odometry', 'Where the camera poses come from: odometry '
+        ParamSpec('pose_source', default_source, 'Where the camera poses come from: odometry '
                   '(nav_msgs/Odometry on odom), pose (geometry_msgs/PoseStamped on pose), tf '
                   '(/tf and /tf_static; needs tf2_msgs, a ROS install)' +
-                  (' or none (a rig that does not move)' if allow_none else ''),
+                  (' or none (the camera does not move)' if allow_none else ''),
                   read_only=True, check=one_of(sources)),
         ParamSpec('world_frame', 'odom', 'tf: the fixed frame the camera moves in',
                   read_only=True),
@@ -81,73 +98,185 @@ def pose_parameters(*, allow_none: bool) -> list[ParamSpec]:
                   'for it, s', 0.0, 10.0),
         ParamSpec('pose_wait', 0.5, 'Longest an image waits for its pose (by stamps: the '
                   'later images\'), s', 0.0, 60.0),
+        ParamSpec('pose_jump_limit', 1.0, 'A pose farther than this from where the poses '
+                  'before it put the camera is held until the next pose says whether the '
+                  'camera jumped (kept) or the pose is wild (dropped), m', 1e-3, 1e6,
+                  read_only=True),
+        ParamSpec('pose_turn_limit', 30.0, 'The same for a pose turned more than this from '
+                  'where the poses before it point the camera, degrees', 0.1, 180.0,
+                  read_only=True),
     ]
 
 
-def mount_pose(values: Sequence[float]) -> Pose:
-    """A pose from ``x y z qx qy qz qw``.
-
-    Raises:
-        ArgumentError: Not 7 finite numbers, or a zero quaternion.
-    """
-    numbers = list(values)
-    if len(numbers) != 7 or not all(isinstance(v, (int, float)) and math.isfinite(v)
-                                    for v in numbers):
-        raise ArgumentError(f'a pose needs 7 finite numbers x y z qx qy qz qw, got {numbers}')
-    return Pose.from_quaternion(np.array(numbers[:3]), np.array(numbers[3:]))
+def _count(node: DepthNode, added: Added, what: str) -> None:
+    """Count the poses a history dropped: ``bad_pose`` (wild), ``stamp_out_of_order``."""
+    for stamp, why in added.rejected:
+        node.drop('bad_pose', f'{what} at {stamp / NS_PER_S:.3f} s skipped: {why}')
+    for stamp, why in added.late:
+        node.drop('stamp_out_of_order', f'{what} at {stamp / NS_PER_S:.3f} s skipped: {why}')
 
 
-def _pose_of(position: Any, orientation: Any) -> Pose:
-    return Pose.from_quaternion((position.x, position.y, position.z),
-                                (orientation.x, orientation.y, orientation.z, orientation.w))
+@dataclass
+class _Waiting(Generic[T]):
+    stamp: int
+    frame_id: str
+    item: T
 
 
-def _stamp(header: Any) -> int:
-    return int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
-
-
-class PoseInput:
-    """A node's camera poses (see the module notes).
+class TfInput:
+    """``/tf`` and ``/tf_static`` kept in a :class:`TransformTree` on a node.
 
     Args:
-        node: The node (a :class:`~depth_nodes.ros.node.DepthNode`): its inputs and drops.
-        values: Its parameter values (:func:`pose_parameters`).
-        on_pose: Called after every pose (or tf edge) kept: images may wait for it.
+        node: The node (its inputs and drops).
+        on_change: Called with what each moving edge's value did (kept, held, rejected),
+            and with ``None`` after static edges came.
+        jump_limit: Metres a moving edge may jump before it is held.
+        turn_limit_deg: Degrees it may turn before it is held.
 
     Raises:
-        ConfigError: ``pose_source: tf`` where tf2_msgs is not installed.
+        ConfigError: tf2_msgs is not installed.
     """
 
-    def __init__(self, node: Any, values: Any, on_pose: Callable[[], None] | None = None
-                 ) -> None:
-        self.node = node
-        self.on_pose_kept = on_pose or (lambda: None)
+    def __init__(self, node: DepthNode, on_change: Callable[[Added | None], None] | None = None,
+                 *, jump_limit: float = 1.0, turn_limit_deg: float = 30.0) -> None:
+        if TFMessage is None:
+            raise ConfigError('reading /tf needs tf2_msgs, which a ROS 2 install has and the '
+                              'PyPI wheels do not')
+        self._node = node
+        self._on_change = on_change or (lambda added: None)
+        self.tree = TransformTree(jump_limit=jump_limit, turn_limit_deg=turn_limit_deg)
+        node.add_input(TFMessage, '/tf_static', self.on_tf_static, qos=TF_STATIC_QOS,
+                       check_stamps=False)
+        node.add_input(TFMessage, '/tf', self.on_tf, qos=TF_DEPTH, check_stamps=False)
+
+    def on_tf(self, msg: Any) -> None:
+        """Keep the moving edges of a tf2_msgs/TFMessage."""
+        for tf in msg.transforms:
+            added = self._set(tf, static=False)
+            if added is not None:
+                self._on_change(added)
+
+    def on_tf_static(self, msg: Any) -> None:
+        """Keep the fixed edges of a /tf_static TFMessage."""
+        for tf in msg.transforms:
+            self._set(tf, static=True)
+        self._on_change(None)
+
+    def _set(self, tf: Any, *, static: bool) -> Added | None:
+        parent, child = tf.header.frame_id, tf.child_frame_id
+        t, q = tf.transform.translation, tf.transform.rotation
+        try:
+            added = self.tree.set(parent, child, 0 if static else stamp_ns(tf.header),
+                                  Pose.from_quaternion((t.x, t.y, t.z), (q.x, q.y, q.z, q.w)),
+                                  static=static)
+        except ArgumentError as exc:
+            self._node.drop('bad_pose', f'transform {parent!r} -> {child!r} skipped: {exc}')
+            return None
+        _count(self._node, added, f'transform {parent!r} -> {child!r}')
+        return added
+
+    def lookup(self, target: str, source: str, stamp: int = 0,
+               tolerance_ns: int | None = None) -> Pose | PoseMiss:
+        """The pose of frame ``source`` in frame ``target`` (at ``stamp`` within
+        ``tolerance_ns``; None: each edge's latest value)."""
+        return self.tree.lookup(target, source, stamp, tolerance_ns)
+
+    def clear(self) -> None:
+        """Forget the moving edges (a time jump)."""
+        self.tree.clear()
+
+
+class PoseInput(Generic[T]):
+    """A node's camera poses, and its frames waiting for them (see the module notes).
+
+    Args:
+        node: The node.
+        process: Called with each frame's item and its camera pose (None with
+            ``pose_source: none``), in stamp order.
+        allow_none: ``pose_source: none`` is allowed.
+        default_source: The default of ``pose_source``.
+
+    Raises:
+        ConfigError: A start-up value the parameters refuse, or ``pose_source: tf`` where
+            tf2_msgs is not installed.
+    """
+
+    def __init__(self, node: DepthNode, process: Callable[[T, Pose | None], None], *,
+                 allow_none: bool, default_source: str = 'odometry') -> None:
+        self._node = node
+        self._process = process
+        self.params = NodeParameters(node, pose_parameters(allow_none=allow_none,
+                                                           default_source=default_source))
+        values = self.params.values
         self.source: str = values['pose_source']
         self.world: str = values['world_frame']
         self.camera_frame: str = values['camera_frame']
-        self.mount = mount_pose(values['camera_in_body'])
-        self.history = PoseHistory()
-        self.tree = TimedTransforms()
+        self.mount = Pose.from_values(values['camera_in_body'])
+        limits = {'jump_limit': values['pose_jump_limit'],
+                  'turn_limit_deg': values['pose_turn_limit']}
+        self.history = PoseHistory(**limits)
+        self.tf: TfInput | None = None
+        self._waiting: deque[_Waiting[T]] = deque()
+        self._restarting = False
         if self.source == 'odometry':
             if Odometry is None:  # pragma: no cover (the package's venv has nav_msgs)
                 raise ConfigError('pose_source odometry needs nav_msgs')
-            node.add_input(Odometry, 'odom', self.on_odometry)
+            node.add_input(Odometry, 'odom', self.on_odometry, check_stamps=False)
         elif self.source == 'pose':
-            node.add_input(PoseStamped, 'pose', self.on_pose)
+            node.add_input(PoseStamped, 'pose', self.on_pose, check_stamps=False)
         elif self.source == 'tf':
             if TFMessage is None:
                 raise ConfigError('pose_source tf needs tf2_msgs, which a ROS 2 install has '
                                   'and the PyPI wheels do not: use pose_source odometry or '
                                   'pose (what a VIO or SLAM node publishes)')
-            node.add_input(TFMessage, '/tf_static', self.on_tf_static, qos=TF_STATIC_QOS,
-                           check_stamps=False)
-            node.add_input(TFMessage, '/tf', self.on_tf, qos=100, check_stamps=False)
+            self.tf = TfInput(node, self._tf_changed, **limits)
 
-    def clear(self) -> None:
-        """Forget the poses (a time jump)."""
-        self.history.clear()
-        self.tree.clear()
+    # ------------------------------------------------------------------ frames
+    def submit(self, header: Any, item: T) -> None:
+        """A frame (its header, and what the node needs to process it): processed at once
+        with ``pose_source: none``, else queued until its pose is known."""
+        if self.source == 'none':
+            self._process(item, None)
+            return
+        self._waiting.append(_Waiting(stamp_ns(header), header.frame_id, item))
+        self.resolve()
 
+    def resolve(self) -> None:
+        """Hand on the waiting frames whose pose is known, in order; drop those whose pose
+        will not come."""
+        values = self.params.values
+        tolerance, wait = round(values['pose_tolerance'] * NS_PER_S), values['pose_wait']
+        while self._waiting:
+            first = self._waiting[0]
+            pose = self.at(first.stamp, first.frame_id, tolerance)
+            if isinstance(pose, PoseMiss):
+                waited = (self._waiting[-1].stamp - first.stamp) / NS_PER_S
+                if pose.reason == 'pose_pending' and waited <= wait:
+                    return  # its pose may still come
+                self._waiting.popleft()
+                reason = 'pose_timeout' if pose.reason == 'pose_pending' else pose.reason
+                self._node.drop(reason, f'frame at {first.stamp / NS_PER_S:.3f} s: '
+                                f'{pose.detail}')
+                continue
+            self._waiting.popleft()
+            self._process(first.item, pose)
+
+    def at(self, stamp: int, frame_id: str, tolerance_ns: int) -> Pose | PoseMiss:
+        """The camera's optical frame in the world at ``stamp`` (``frame_id``: the image's,
+        for tf), or why there is none."""
+        if self.source == 'none':
+            return Pose()
+        if self.tf is not None:
+            return self.tf.lookup(self.world, self.camera_frame or frame_id, stamp,
+                                  tolerance_ns)
+        body = self.history.at(stamp, tolerance_ns)
+        return body if isinstance(body, PoseMiss) else body.compose(self.mount)
+
+    def __len__(self) -> int:
+        """Frames waiting for their pose."""
+        return len(self._waiting)
+
+    # ------------------------------------------------------------------ poses
     def on_odometry(self, msg: Any) -> None:
         """Keep an Odometry message's pose (the body's, ``child_frame_id``, in its header
         frame)."""
@@ -158,98 +287,45 @@ class PoseInput:
         self._keep(msg.header, msg.pose)
 
     def _keep(self, header: Any, pose: Any) -> None:
+        stamp = stamp_ns(header)
+        p, q = pose.position, pose.orientation
         try:
-            self.history.add(_stamp(header), _pose_of(pose.position, pose.orientation))
+            added = self.history.add(stamp, Pose.from_quaternion(
+                (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)))
         except ArgumentError as exc:
-            self.node.drop('bad_pose', f'pose at {_stamp(header) / 1e9:.3f} s skipped: {exc}')
+            self._node.drop('bad_pose', f'pose at {stamp / NS_PER_S:.3f} s skipped: {exc}')
             return
-        self.on_pose_kept()
+        _count(self._node, added, 'pose')
+        self._changed(added, stamp)
 
-    def on_tf(self, msg: Any) -> None:
-        """Keep the moving edges of a tf2_msgs/TFMessage."""
-        self._edges(msg, static=False)
+    def _tf_changed(self, added: Added | None) -> None:
+        if added is None:  # static edges
+            self.resolve()
+            return
+        self._changed(added, added.kept[-1] if added.kept else 0)
 
-    def on_tf_static(self, msg: Any) -> None:
-        """Keep the fixed edges of a /tf_static TFMessage."""
-        self._edges(msg, static=True)
-
-    def _edges(self, msg: Any, *, static: bool) -> None:
-        for tf in msg.transforms:
-            t, q = tf.transform.translation, tf.transform.rotation
+    def _changed(self, added: Added, stamp: int) -> None:
+        if added.restarted:  # the poses' stamps went back, and the next pose agrees
+            self._restarting = True
             try:
-                self.tree.set(tf.header.frame_id, tf.child_frame_id, _stamp(tf.header),
-                              _pose_of(t, q), static=static)
-            except ArgumentError as exc:
-                self.node.drop('bad_pose', f'transform {tf.header.frame_id!r} -> '
-                               f'{tf.child_frame_id!r} skipped: {exc}')
-        self.on_pose_kept()
+                self._node.input_set.restart(stamp, 'the pose stamps jumped back')
+            finally:
+                self._restarting = False
+        if added.kept or added.rejected:
+            self.resolve()
 
-    def at(self, stamp_ns: int, frame_id: str, tolerance_s: float) -> Pose | PoseMiss:
-        """The camera's optical frame in the world at ``stamp_ns`` (``frame_id``: the
-        image's, for tf), or why there is none."""
-        tolerance = round(tolerance_s * NS_PER_S)
-        if self.source == 'none':
-            return Pose()
-        if self.source == 'tf':
-            return self.tree.lookup(self.world, self.camera_frame or frame_id, stamp_ns,
-                                    tolerance)
-        body = self.history.at(stamp_ns, tolerance)
-        return body if isinstance(body, PoseMiss) else body.compose(self.mount)
-
-
-@dataclass
-class _Waiting(Generic[T]):
-    stamp: int
-    frame_id: str
-    item: T
-
-
-class PoseWaiter(Generic[T]):
-    """Frames waiting for their pose, handed on in order once it is known.
-
-    A frame whose pose is still missing waits while the frames after it span at most
-    ``pose_wait`` seconds (by their stamps); then it is dropped as ``pose_timeout``, and a
-    frame whose pose will not come (``no_pose``, ``bad_pose``: see
-    :class:`~depth_nodes.core.mvs.poses.PoseMiss`) is dropped at once.
-
-    Args:
-        node: The node (a :class:`~depth_nodes.ros.node.DepthNode`): its drops.
-        poses: Its pose input.
-        process: Called with each frame's item and pose, in stamp order.
-    """
-
-    def __init__(self, node: Any, poses: PoseInput, process: Callable[[T, Pose], None]
-                 ) -> None:
-        self.node = node
-        self.poses = poses
-        self.process = process
-        self._waiting: deque[_Waiting[T]] = deque()
-
-    def __len__(self) -> int:
-        return len(self._waiting)
-
-    def add(self, stamp_ns: int, frame_id: str, item: T, tolerance_s: float,
-            wait_s: float) -> None:
-        """Queue a frame, then hand on every frame whose pose is known."""
-        self._waiting.append(_Waiting(stamp_ns, frame_id, item))
-        self.resolve(tolerance_s, wait_s)
-
-    def resolve(self, tolerance_s: float, wait_s: float) -> None:
-        """Hand on the waiting frames whose pose is known, in order; drop those whose pose
-        will not come."""
-        while self._waiting:
-            first = self._waiting[0]
-            pose = self.poses.at(first.stamp, first.frame_id, tolerance_s)
-            if isinstance(pose, PoseMiss):
-                waited = (self._waiting[-1].stamp - first.stamp) / NS_PER_S
-                if pose.reason == 'pose_pending' and waited <= wait_s:
-                    return  # its pose may still come
-                self._waiting.popleft()
-                reason = 'pose_timeout' if pose.reason == 'pose_pending' else pose.reason
-                self.node.drop(reason, f'frame at {first.stamp / 1e9:.3f} s: {pose.detail}')
-                continue
-            self._waiting.popleft()
-            self.process(first.item, pose)
+    # ------------------------------------------------------------------ the node's hooks
+    def on_time_jump(self, stamp: int | None) -> None:
+        """The inputs started over at ``stamp`` (called by the node base): the waiting
+        frames are dropped as ``time_jump``, and the poses forgotten, but for a held pose
+        that went back in time with the images (the first of the new timeline)."""
+        self.discard('time_jump', 'discarded when the stamps jumped back')
+        if self._restarting:  # this input's own restart: its history is the new timeline
+            return
+        if not self.history.restart_from_held():
+            self.history.clear()
+        if self.tf is not None:
+            self.tf.clear()
 
     def clear(self) -> None:
         """Forget the waiting frames without counting them (nobody wants their output)."""
@@ -258,6 +334,6 @@ class PoseWaiter(Generic[T]):
     def discard(self, reason: str, why: str) -> None:
         """Drop every waiting frame as ``reason`` (a time jump, the end of the stream)."""
         if self._waiting:
-            self.node.drop(reason, f'{len(self._waiting)} frame(s) waiting for a pose {why}',
-                           count=len(self._waiting))
+            self._node.drop(reason, f'{len(self._waiting)} frame(s) waiting for a pose {why}',
+                            count=len(self._waiting))
         self._waiting.clear()

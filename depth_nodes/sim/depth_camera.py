@@ -8,36 +8,17 @@ the ray length and the 3-D points are exact (float64 until the images are made).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.depth_image import Intrinsics
+from depth_nodes.core.geometry import Intrinsics, Pose
 from depth_nodes.sim.scene import Scene
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ['CameraPose', 'DepthView', 'render_view']
-
-
-@dataclass(frozen=True)
-class CameraPose:
-    """Where a camera's optical frame sits in the scene's frame.
-
-    Attributes:
-        rotation: (3, 3) camera -> scene rotation (its columns are the camera's axes).
-        position: (3,) the camera's centre in the scene, metres.
-    """
-
-    rotation: FloatArray = field(default_factory=lambda: np.eye(3))
-    position: FloatArray = field(default_factory=lambda: np.zeros(3))
-
-    def relative_to(self, other: CameraPose) -> tuple[FloatArray, FloatArray]:
-        """Rotation and translation taking points of this camera's frame into ``other``'s."""
-        rotation = other.rotation.T @ self.rotation
-        translation = other.rotation.T @ (self.position - other.position)
-        return rotation, translation
+__all__ = ['DepthView', 'render_view']
 
 
 @dataclass
@@ -59,7 +40,7 @@ class DepthView:
     colour: NDArray[np.uint8] | None
 
 
-def render_view(scene: Scene, camera: Intrinsics, pose: CameraPose | None = None, *,
+def render_view(scene: Scene, camera: Intrinsics, pose: Pose | None = None, *,
                 colour: bool = False, gain: float = 255.0) -> DepthView:
     """Cast one ray per pixel centre of ``camera`` placed at ``pose``.
 
@@ -70,7 +51,7 @@ def render_view(scene: Scene, camera: Intrinsics, pose: CameraPose | None = None
         colour: Also shade the hits (the scene's light) into an RGB image.
         gain: Radiance to 8-bit scale of the colour image.
     """
-    pose = pose or CameraPose()
+    pose = pose or Pose()
     u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64),
                        np.arange(camera.height, dtype=np.float64))
     rays = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy,

@@ -37,8 +37,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.depth_image import Intrinsics
-from depth_nodes.core.mvs.geometry import Pose
+from depth_nodes.core.geometry import Intrinsics, Pose
 from depth_nodes.errors import ConfigError
 from depth_nodes.sim.layout import build_scene
 from depth_nodes.sim.sequence import pixel_rays

@@ -14,7 +14,8 @@ import sys
 import numpy as np
 
 from depth_nodes.core.depth_filter import DepthFilter, DepthFilterParams, stereo_sigma
-from depth_nodes.core.depth_image import intrinsics, to_metres
+from depth_nodes.core.depth_image import to_metres
+from depth_nodes.core.geometry import intrinsics
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import image_to_array

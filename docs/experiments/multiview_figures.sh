@@ -79,7 +79,7 @@ for group in $WHICH; do
       # kalman, the default, is the motions group's sideways-640x480
       for filter in gauss_uniform none; do
         run "filter-$filter" mvs_sideways 24 640x480 config/multiview_pipeline.yaml -- \
-          'planes: 128' "depth_filter: $filter"
+          'planes: 128' "temporal_filter: $filter"
       done ;;
     costs)
       run cost-census mvs_sideways 24 640x480 config/multiview_pipeline.yaml -- \

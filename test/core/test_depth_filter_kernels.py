@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers import kernel_size
+from reference.depth_filter import warp_reference
 
 from depth_nodes.core.depth_filter.decimate import (
     decimate,
@@ -30,10 +31,9 @@ from depth_nodes.core.depth_filter.temporal import (
     fresh_state,
     temporal_reference,
     temporal_step,
-    warp_reference,
     warp_state,
 )
-from depth_nodes.core.depth_image import Intrinsics
+from depth_nodes.core.geometry import Intrinsics
 from depth_nodes.errors import ArgumentError
 
 
@@ -249,8 +249,8 @@ def test_warp_kernel_matches_reference(disparity: bool) -> None:
     R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0,
                                                                   np.cos(angle)]])
     t = np.array([0.1, -0.05, 0.2])
-    got = warp_state(state, dst, R, t, disparity)
-    want = warp_reference(state, dst, R, t, disparity)
+    got = warp_state(state, dst, (R, t), disparity)
+    want = warp_reference(state, dst, (R, t), disparity)
     np.testing.assert_allclose(got.values, want.values, rtol=1e-6)
     np.testing.assert_allclose(got.var, want.var, rtol=1e-5)
     np.testing.assert_array_equal(got.history, want.history)
@@ -260,7 +260,7 @@ def test_warp_kernel_matches_reference(disparity: bool) -> None:
 def test_warp_keeps_every_pixel_when_the_camera_stays() -> None:
     camera = Intrinsics(40.0, 40.0, 9.5, 7.5, 20, 16)
     state = _state(camera, 5)
-    moved = warp_state(state, camera, np.eye(3), np.zeros(3), True)
+    moved = warp_state(state, camera, (np.eye(3), np.zeros(3)), True)
     valid = np.isfinite(state.values)
     np.testing.assert_allclose(moved.values[valid], state.values[valid], rtol=1e-6)
     np.testing.assert_array_equal(moved.history[valid], state.history[valid])
@@ -274,7 +274,7 @@ def test_warp_moves_a_plane_by_its_parallax() -> None:
     state.values[:] = 0.5  # 2 m in the disparity domain
     state.history[:] = np.arange(20, dtype=np.uint8)[None, :]
     # the camera moves 0.1 m to the right: a point 2 m away moves 40 * 0.1 / 2 = 2 px left
-    moved = warp_state(state, camera, np.eye(3), np.array([-0.1, 0.0, 0.0]), True)
+    moved = warp_state(state, camera, (np.eye(3), np.array([-0.1, 0.0, 0.0])), True)
     assert (moved.history[:, :18] == np.arange(2, 20)).all()
     assert np.isnan(moved.values[:, 18:]).all()
     assert (moved.history[:, 18:] == 0).all()

@@ -15,29 +15,34 @@ import cv2
 import numpy as np
 import pytest
 from helpers import Lazy, kernel_size
+from reference.geometry import splat_reference
 
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.depth_image import (
-    Intrinsics,
     colour_at_depth_pixels,
     depth_to_disparity,
     depth_to_points,
     from_metres,
-    intrinsics,
     register_depth,
-    register_reference,
     to_metres,
 )
-from depth_nodes.core.transforms import TransformTree, quaternion_from_rpy, rotation_matrix
+from depth_nodes.core.geometry import (
+    Intrinsics,
+    Motion,
+    Pose,
+    intrinsics,
+    quaternion_from_rpy,
+    rotation_matrix,
+)
 from depth_nodes.errors import ArgumentError, CalibrationError
-from depth_nodes.sim.depth_camera import CameraPose, render_view
+from depth_nodes.sim.depth_camera import render_view
 from depth_nodes.sim.layout import build_scene, rotation
 from depth_nodes.sim.projector import reference_plane_scene
 
 DEPTH_CAM = Intrinsics(140.0, 141.0, 79.5, 59.0, 160, 120)
 RGB_CAM = Intrinsics(290.0, 290.0, 161.0, 118.5, 320, 240)
-DEPTH_POSE = CameraPose()
-RGB_POSE = CameraPose(rotation(1.0, -0.5, 0.3), np.array([0.025, 0.002, -0.003]))
+DEPTH_POSE = Pose()
+RGB_POSE = Pose(rotation(1.0, -0.5, 0.3), np.array([0.025, 0.002, -0.003]))
 SCENE = Lazy(lambda: build_scene(3, 0, 140.0, 160, 120))
 DEPTH_VIEW = Lazy(lambda: render_view(SCENE, DEPTH_CAM, DEPTH_POSE))
 RGB_VIEW = Lazy(lambda: render_view(SCENE, RGB_CAM, RGB_POSE, colour=True))
@@ -45,6 +50,17 @@ RGB_VIEW = Lazy(lambda: render_view(SCENE, RGB_CAM, RGB_POSE, colour=True))
 
 def _relative() -> tuple[np.ndarray, np.ndarray]:
     return DEPTH_POSE.relative_to(RGB_POSE)
+
+
+def register_reference(depth: np.ndarray, source: Intrinsics, target: Intrinsics,
+                       motion: Motion) -> np.ndarray:
+    """register_depth by the plain splat (corners footprint): Z as float32, NaN where
+    nothing landed or Z is beyond float32."""
+    landed = splat_reference(depth, source, target, motion, footprint='corners')
+    with np.errstate(over='ignore'):
+        out = landed.depth.astype(np.float32)
+    out[~np.isfinite(out)] = np.nan
+    return out
 
 
 # ------------------------------------------------------------------ units
@@ -200,19 +216,19 @@ def test_registration_matches_the_plain_reference() -> None:
     for target in kernel_size((downsampled, Intrinsics(150.0, 150.0, 80.5, 59.0, 160, 120),
                                Intrinsics(330.0, 320.0, 100.0, 90.0, 200, 170)),
                               (downsampled,)):
-        np.testing.assert_array_equal(register_depth(depth, DEPTH_CAM, target, R, t),
-                                      register_reference(depth, DEPTH_CAM, target, R, t))
+        np.testing.assert_array_equal(register_depth(depth, DEPTH_CAM, target, (R, t)),
+                                      register_reference(depth, DEPTH_CAM, target, (R, t)))
     noise = rng.uniform(0.05, 3.0, (30, 40)).astype(np.float32)
     small = Intrinsics(30.0, 30.0, 19.5, 14.5, 40, 30)
     turned = rotation_matrix(quaternion_from_rpy(0.3, -0.4, 0.2))
     shift = np.array([0.2, -0.1, 0.5])
-    np.testing.assert_array_equal(register_depth(noise, small, small, turned, shift),
-                                  register_reference(noise, small, small, turned, shift))
+    np.testing.assert_array_equal(register_depth(noise, small, small, (turned, shift)),
+                                  register_reference(noise, small, small, (turned, shift)))
 
 
 def test_registration_into_the_colour_camera_gives_its_depth() -> None:
     R, t = _relative()
-    registered = register_depth(DEPTH_VIEW.depth, DEPTH_CAM, RGB_CAM, R, t)
+    registered = register_depth(DEPTH_VIEW.depth, DEPTH_CAM, RGB_CAM, (R, t))
     truth = RGB_VIEW.depth
     both = np.isfinite(registered) & np.isfinite(truth)
     assert both.mean() > 0.97  # the rest: the border the depth camera does not see
@@ -229,10 +245,10 @@ def test_registration_of_a_fronto_parallel_plane_is_exact() -> None:
     """A plane facing the target camera: every covered pixel has the same Z, exactly."""
     z = 2.0
     wall = reference_plane_scene(z)
-    target_pose = CameraPose(position=np.array([0.05, 0.01, 0.0]))
+    target_pose = Pose(position=np.array([0.05, 0.01, 0.0]))
     source = render_view(wall, DEPTH_CAM)
-    R, t = CameraPose().relative_to(target_pose)
-    registered = register_depth(source.depth, DEPTH_CAM, RGB_CAM, R, t)
+    R, t = Pose().relative_to(target_pose)
+    registered = register_depth(source.depth, DEPTH_CAM, RGB_CAM, (R, t))
     truth = render_view(wall, RGB_CAM, target_pose).depth
     covered = np.isfinite(registered)
     assert covered.mean() > 0.9
@@ -246,9 +262,10 @@ def test_the_nearest_surface_wins() -> None:
     depth = np.array([[0.5, 1.0, np.nan]], np.float32)
     # x = -0.05 at 0.5 m and x = 0 at 1 m; seen 0.1 m further left both are at u = 2
     shift = np.array([0.1, 0.0, 0.0])
-    out = register_depth(depth, cam, cam, np.eye(3), shift)
+    out = register_depth(depth, cam, cam, (np.eye(3), shift))
     assert out[0, 2] == np.float32(0.5)
-    np.testing.assert_array_equal(out, register_reference(depth, cam, cam, np.eye(3), shift))
+    np.testing.assert_array_equal(out, register_reference(depth, cam, cam,
+                                                          (np.eye(3), shift)))
 
 
 #: Finite depths far from any camera's working range, metres: float32's smallest
@@ -263,83 +280,29 @@ def test_an_extreme_depth_writes_its_footprint_only(z: float, pose: str) -> None
     """One depth pixel at an extreme but finite depth writes the target pixels its footprint
     covers and no other, as the plain reference does. A pixel of 1e-30 m seen from 2 cm
     beside it projects ~1e30 px away: the float loop bound became the most negative integer
-    when converted and the pixel filled its whole row (issue 33)."""
+    when converted and the pixel filled its whole row."""
     cam = Intrinsics(30.0, 30.0, 15.5, 11.5, 32, 24)
     R, t = ((np.eye(3), np.array([0.02, 0.0, 0.0])) if pose == 'beside' else
             (rotation_matrix(quaternion_from_rpy(0.3, -0.4, 0.2)), np.array([0.02, 0.01, 0.0])))
     for v, u in ((11, 15), (0, 0), (23, 31), (5, 25)):
         depth = np.full((24, 32), np.nan, np.float32)
         depth[v, u] = z
-        out = register_depth(depth, cam, cam, R, t)
-        np.testing.assert_array_equal(out, register_reference(depth, cam, cam, R, t))
+        out = register_depth(depth, cam, cam, (R, t))
+        np.testing.assert_array_equal(out, register_reference(depth, cam, cam, (R, t)))
         assert np.isfinite(out).sum() <= 4, (v, u)  # a pixel's footprint, never a row
     one = np.full((24, 32), np.nan, np.float32)
     one[11, 15] = 1e-30
-    assert np.isnan(register_depth(one, cam, cam, np.eye(3), np.array([0.02, 0.0, 0.0]))).all()
+    beside = (np.eye(3), np.array([0.02, 0.0, 0.0]))
+    assert np.isnan(register_depth(one, cam, cam, beside)).all()
 
 
 @pytest.mark.parametrize(('R', 't', 'message'), [
-    (np.eye(2), np.zeros(3), 'rotation must be \\(3, 3\\)'),
-    (np.eye(3), np.zeros(2), 'translation \\(3,\\)'),
+    (np.eye(2), np.zeros(3), 'rotation must be a finite \\(3, 3\\)'),
+    (np.eye(3), np.zeros(2), 'translation must be 3 finite'),
     (2 * np.eye(3), np.zeros(3), 'not a rotation matrix'),
-    (np.diag([1.0, 1.0, -1.0]), np.zeros(3), 'not a rotation matrix'),
-    (np.eye(3), np.array([0, np.nan, 0]), 'must be finite'),
+    (np.diag([1.0, 1.0, -1.0]), np.zeros(3), 'not a rotation matrix: a reflection'),
+    (np.eye(3), np.array([0, np.nan, 0]), 'translation must be 3 finite'),
 ])
 def test_bad_extrinsics_are_refused(R: np.ndarray, t: np.ndarray, message: str) -> None:
     with pytest.raises(ArgumentError, match=message):
-        register_depth(DEPTH_VIEW.depth, DEPTH_CAM, RGB_CAM, R, t)
-
-
-# ------------------------------------------------------------- transforms
-
-
-def _random_rigid(rng: np.random.Generator) -> tuple[tuple[float, float, float],
-                                                      tuple[float, float, float, float]]:
-    q = rng.normal(size=4)
-    t = rng.normal(size=3)
-    return (float(t[0]), float(t[1]), float(t[2])), tuple(float(v) for v in q)  # type: ignore
-
-
-def test_transform_tree_composes_a_chain_both_ways() -> None:
-    rng = np.random.default_rng(3)
-    tree = TransformTree()
-    edges = {('base', 'rig'): _random_rigid(rng), ('rig', 'depth'): _random_rigid(rng),
-             ('rig', 'rgb'): _random_rigid(rng)}
-    for (parent, child), (t, q) in edges.items():
-        tree.set(parent, child, t, q)
-
-    def pose(parent: str, child: str) -> np.ndarray:
-        t, q = edges[(parent, child)]
-        m = np.eye(4)
-        m[:3, :3], m[:3, 3] = rotation_matrix(q), t
-        return m
-
-    # depth -> rgb: into rig by the depth edge, out of rig by the inverse rgb edge
-    expected = np.linalg.inv(pose('rig', 'rgb')) @ pose('rig', 'depth')
-    found = tree.lookup('rgb', 'depth')
-    assert found is not None
-    R, t = found
-    np.testing.assert_allclose(R, expected[:3, :3], atol=1e-12)
-    np.testing.assert_allclose(t, expected[:3, 3], atol=1e-12)
-    back = tree.lookup('depth', 'rgb')
-    assert back is not None
-    np.testing.assert_allclose(back[0], R.T, atol=1e-12)
-    assert tree.lookup('rgb', 'rgb') is not None
-    assert tree.lookup('rgb', 'elsewhere') is None
-
-
-def test_transform_tree_refuses_bad_edges() -> None:
-    tree = TransformTree()
-    with pytest.raises(ArgumentError, match='two different frame names'):
-        tree.set('a', 'a', (0, 0, 0), (0, 0, 0, 1))
-    with pytest.raises(ArgumentError, match='4 finite values'):
-        tree.set('a', 'b', (0, 0, 0), (0, 0, 0, 0))
-    with pytest.raises(ArgumentError, match='translation must be 3 finite'):
-        tree.set('a', 'b', (0, np.inf, 0), (0, 0, 0, 1))
-
-
-def test_rotation_matrix_of_a_quaternion_matches_opencv() -> None:
-    q = quaternion_from_rpy(0.2, -0.3, 0.5)
-    angle = 2 * np.arccos(q[3])
-    axis = np.array(q[:3]) / np.sin(angle / 2)
-    np.testing.assert_allclose(rotation_matrix(q), cv2.Rodrigues(axis * angle)[0], atol=1e-12)
+        register_depth(DEPTH_VIEW.depth, DEPTH_CAM, RGB_CAM, (R, t))

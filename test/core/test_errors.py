@@ -20,6 +20,7 @@ from depth_nodes.core.cross_check import (
     median_filter,
     remove_speckles,
 )
+from depth_nodes.core.geometry import camera_transform
 from depth_nodes.core.groundtruth import nonoccluded_from_right, read_disparity_file, write_pfm
 from depth_nodes.core.metrics import disparity_errors, optimal_auc, sparsification_auc
 from depth_nodes.core.opencv_stereo import BmSettings, opencv_bm, opencv_sgbm
@@ -28,7 +29,6 @@ from depth_nodes.core.reproject import depth_std, reproject_disparity
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.border import fill_outside
 from depth_nodes.core.sgm.census import census_transform
-from depth_nodes.core.transforms import camera_transform
 from depth_nodes.errors import ArgumentError, DepthNodesError
 from depth_nodes.sim.texture import Texture
 

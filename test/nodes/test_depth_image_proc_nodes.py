@@ -23,7 +23,7 @@ from rclpy.parameter import Parameter
 from ros_helpers import capture, header
 
 from depth_nodes.core.camera import CameraModel
-from depth_nodes.core.depth_image import Intrinsics
+from depth_nodes.core.geometry import Intrinsics, Pose
 from depth_nodes.errors import ConfigError
 from depth_nodes.nodes import register_depth
 from depth_nodes.nodes.convert_metric import ConvertMetricNode
@@ -31,12 +31,13 @@ from depth_nodes.nodes.depth_disparity import DepthDisparityNode
 from depth_nodes.nodes.point_cloud_xyz import PointCloudXyzNode
 from depth_nodes.nodes.point_cloud_xyzrgb import PointCloudXyzrgbNode
 from depth_nodes.nodes.register_depth import RegisterNode
+from depth_nodes.ros import poses
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.ros.pointcloud import read_pointcloud
 from depth_nodes.ros.transport import compress_depth
-from depth_nodes.sim.depth_camera import CameraPose, render_view
+from depth_nodes.sim.depth_camera import render_view
 from depth_nodes.sim.layout import build_scene, rotation
 from harness_nodes import count_calls, want_only
 
@@ -46,7 +47,7 @@ DEPTH_CAM = Intrinsics(140.0, 141.0, 79.5, 59.0, 160, 120)
 RGB_CAM = Intrinsics(290.0, 290.0, 161.0, 118.5, 320, 240)
 #: The colour camera at half its size: the grid a depth image registered to it may have.
 RGB_HALF = Intrinsics(145.0, 145.0, (161.0 + 0.5) / 2 - 0.5, (118.5 + 0.5) / 2 - 0.5, 160, 120)
-RGB_POSE = CameraPose(rotation(1.0, -0.5, 0.3), np.array([0.025, 0.002, -0.003]))
+RGB_POSE = Pose(rotation(1.0, -0.5, 0.3), np.array([0.025, 0.002, -0.003]))
 SCENE = Lazy(lambda: build_scene(3, 0, 140.0, 160, 120))
 DEPTH = Lazy(lambda: render_view(SCENE, DEPTH_CAM))
 RGB = Lazy(lambda: render_view(SCENE, RGB_CAM, RGB_POSE, colour=True))
@@ -244,7 +245,7 @@ def test_xyzrgb_bad_colour_is_counted(context: Context) -> None:
 
 
 def _depth_in_rgb() -> list[float]:
-    R, t = CameraPose().relative_to(RGB_POSE)
+    R, t = Pose().relative_to(RGB_POSE)
     return [*map(float, t), *_quaternion(R)]
 
 
@@ -290,7 +291,7 @@ def fake_tf2(monkeypatch: pytest.MonkeyPatch) -> None:
     """tf2_msgs is not among the PyPI wheels: a stand-in message type lets the node
     subscribe; the test then hands it transforms directly."""
     from diagnostic_msgs.msg import DiagnosticArray
-    monkeypatch.setattr(register_depth, 'TFMessage', DiagnosticArray)
+    monkeypatch.setattr(poses, 'TFMessage', DiagnosticArray)
 
 
 def _tf(parent: str, child: str, pose: list[float]) -> Any:
@@ -310,28 +311,29 @@ def test_register_takes_the_extrinsics_from_tf(context: Context, fake_tf2: None)
         node.on_frame(*args)
         assert node.drops == {'no_transform': 1}
         # rgb and depth both hang off a rig frame: rig -> rgb is the identity here
-        node.on_transforms(SimpleNamespace(transforms=[
+        node.tf.on_tf_static(SimpleNamespace(transforms=[
             _tf('rig', 'depth_optical', _depth_in_rgb()),
             _tf('rig', 'rgb_optical', [0, 0, 0, 0, 0, 0, 1])]))
         node.on_frame(*args)
         assert node.drops == {'no_transform': 1}
         _check_registered(node.outbox['/depth_registered/image_rect'], '32FC1')
-        node.on_transforms(SimpleNamespace(transforms=[_tf('a', 'a', [0] * 6 + [1])]))
+        node.tf.on_tf_static(SimpleNamespace(transforms=[_tf('a', 'a', [0] * 6 + [1])]))
+        assert node.drops == {'no_transform': 1, 'bad_pose': 1}  # counted, not raised
     finally:
         node.destroy_node()
 
 
 def test_register_without_tf2_needs_depth_in_rgb(context: Context,
                                                  monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(register_depth, 'TFMessage', None)  # as on the PyPI wheels
+    monkeypatch.setattr(poses, 'TFMessage', None)  # as on the PyPI wheels
     with pytest.raises(ConfigError, match='register_depth: set depth_in_rgb'):
         RegisterNode(context=context)
 
 
 @pytest.mark.parametrize(('value', 'message'), [
-    ([0.0, 0.0, 0.0], 'needs 7 values'),
+    ([0.0, 0.0, 0.0], 'needs 7 finite numbers'),
     ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], '4 finite values, not all zero'),
-    ([0.0, float('nan'), 0.0, 0.0, 0.0, 0.0, 1.0], 'translation must be finite'),
+    ([0.0, float('nan'), 0.0, 0.0, 0.0, 0.0, 1.0], 'needs 7 finite numbers'),
 ])
 def test_register_refuses_a_bad_pose(context: Context, value: list[float],
                                      message: str) -> None:

@@ -11,7 +11,7 @@ from builtin_interfaces.msg import Time
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from depth_nodes.core.transforms import (
+from depth_nodes.core.geometry import (
     OPTICAL_RPY,
     camera_transform,
     quaternion_from_rpy,

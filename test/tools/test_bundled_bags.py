@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from helpers import REPO
 
+from depth_nodes.core.geometry import Pose
 from depth_nodes.core.mvs.consistency import consistency
-from depth_nodes.core.mvs.geometry import Pose
 from depth_nodes.core.rectify import rectify_image
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.image import image_to_array, to_gray

@@ -15,8 +15,7 @@ import numpy as np
 import pytest
 from helpers import REPO, run_cli
 
-from depth_nodes.core.mvs.geometry import Pose, quaternion_of
-from depth_nodes.core.transforms import quaternion_from_rpy, rotation_matrix
+from depth_nodes.core.geometry import Pose, quaternion_from_rpy, quaternion_of, rotation_matrix
 from depth_nodes.errors import ConfigError
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.bags.views import (

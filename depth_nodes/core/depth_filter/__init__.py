@@ -4,14 +4,9 @@ hole filling, in librealsense's order, with every filled pixel marked and the pe
 standard deviation carried through. No ROS here.
 """
 
-from depth_nodes.core.depth_filter.chain import (
-    DepthFilter,
-    FilterResult,
-    relative_motion,
-    warm_up,
-)
+from depth_nodes.core.depth_filter.chain import DepthFilter, FilterResult, warm_up
 from depth_nodes.core.depth_filter.noise import NOISE_MODELS, stereo_sigma, tof_sigma
 from depth_nodes.core.depth_filter.params import DepthFilterParams
 
 __all__ = ['NOISE_MODELS', 'DepthFilter', 'DepthFilterParams', 'FilterResult',
-           'relative_motion', 'stereo_sigma', 'tof_sigma', 'warm_up']
+           'stereo_sigma', 'tof_sigma', 'warm_up']

@@ -26,8 +26,7 @@ from depth_nodes.core.depth_filter.temporal import (
     temporal_step,
     warp_state,
 )
-from depth_nodes.core.depth_image import Intrinsics
-from depth_nodes.core.mvs.geometry import Pose
+from depth_nodes.core.geometry import Intrinsics, Motion, Pose, Splat
 from depth_nodes.core.tof.flying import remove_flying_pixels
 from depth_nodes.errors import ArgumentError
 
@@ -64,14 +63,6 @@ class FilterResult:
     reset: str | None = None
 
 
-def relative_motion(previous: Pose, current: Pose) -> tuple[NDArray[np.float64],
-                                                           NDArray[np.float64]]:
-    """Rotation and translation taking points of the previous optical frame into the
-    current one."""
-    rotation = current.rotation.T @ previous.rotation
-    return rotation, current.rotation.T @ (previous.position - current.position)
-
-
 class DepthFilter:
     """A stream of depth frames -> filtered frames (see the module notes)."""
 
@@ -80,7 +71,7 @@ class DepthFilter:
         self.pose: Pose | None = None
         self._spare: TemporalState | None = None  # the state the warp writes next
         self._disparity = True  # the domain of the memory's values
-        self._zbuf: NDArray[np.float64] | None = None
+        self._landed: Splat | None = None  # the warp's z-buffer, reused
 
     def reset(self) -> None:
         """Forget the past frames (a time jump, a gap)."""
@@ -186,23 +177,23 @@ class DepthFilter:
             self.state = fresh_state(camera)
             return reset
         if pose is not None and self.pose is not None:
-            rotation, translation = relative_motion(self.pose, pose)
+            rotation, translation = self.pose.relative_to(pose)
             angle = np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0))
             if angle > STILL[0] or np.linalg.norm(translation) > STILL[1] or \
                     self.state.camera != camera:
-                self._warp(camera, rotation, translation, disparity)
+                self._warp(camera, (rotation, translation), disparity)
         elif self.state.camera != camera:
-            self._warp(camera, np.eye(3), np.zeros(3), disparity)
+            self._warp(camera, (np.eye(3), np.zeros(3)), disparity)
         return reset
 
-    def _warp(self, camera: Intrinsics, rotation: NDArray[np.float64],
-              translation: NDArray[np.float64], disparity: bool) -> None:
+    def _warp(self, camera: Intrinsics, motion: Motion, disparity: bool) -> None:
         """Move the memory with the camera, into the spare buffers (double buffering)."""
         assert self.state is not None
-        if self._zbuf is None or self._zbuf.shape != (camera.height, camera.width):
-            self._zbuf = np.empty((camera.height, camera.width))
-        moved = warp_state(self.state, camera, rotation, translation, disparity,
-                           spare=self._spare, zbuf=self._zbuf)
+        shape = (camera.height, camera.width)
+        if self._landed is None or self._landed.depth.shape != shape:
+            self._landed = Splat.empty(shape)
+        moved = warp_state(self.state, camera, motion, disparity, spare=self._spare,
+                           landed=self._landed)
         self._spare, self.state = self.state, moved
 
 

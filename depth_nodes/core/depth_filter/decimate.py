@@ -15,7 +15,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.depth_image import Intrinsics
+from depth_nodes.core.geometry import Intrinsics
 from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]

@@ -27,13 +27,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.depth_filter.params import PERSISTENCE
-from depth_nodes.core.depth_image import Intrinsics
+from depth_nodes.core.geometry import Intrinsics, Motion, Splat, splat
 from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
 B = NDArray[np.bool_]
 F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
 
 
 @dataclass
@@ -155,143 +156,54 @@ def fresh_state(camera: Intrinsics) -> TemporalState:
 
 
 @numba.njit(cache=True, nogil=True, error_model='numpy')
-def _warp_kernel(values: F32, var: F32, history: U8, disparity: bool, src: F64, dst: F64,
-                 R: F64, t: F64, out: F32, out_var: F32, out_history: U8, zbuf: F64) -> None:
-    h, w = values.shape
-    oh, ow = out.shape
-    # the camera and the motion as scalars: the first loop then vectorises
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = R[0, 0], R[0, 1], R[0, 2], R[1, 0], \
-        R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2]
-    t0, t1, t2 = t[0], t[1], t[2]
-    fu, fv, cu, cv = dst[0], dst[1], dst[2], dst[3]
-    half_u, half_v = 0.5 * dst[0] / src[0], 0.5 * dst[1] / src[1]
-    inv_fx, inv_fy, cx, cy = 1.0 / src[0], 1.0 / src[1], src[2], src[3]
-    zs = np.empty(w)
-    moved = np.empty(w)
-    ratios = np.empty(w)
-    box = np.empty((4, w))  # each point's footprint: u and v from, u and v to
-    for y in range(h):
-        ny = (y - cy) * inv_fy
-        for x in range(w):  # the row's points, projected (no branch: NaN flows through)
+def _carry_kernel(values: F32, var: F32, history: U8, disparity: bool, zbuf: F64,
+                  index: I64, out: F32, out_var: F32, out_history: U8) -> None:
+    """Each landed pixel's value: the new Z (or 1 / Z), the variance scaled by the change
+    of depth (in disparity), the history as it was."""
+    oh, ow = zbuf.shape
+    w = values.shape[1]
+    for r in range(oh):
+        for c in range(ow):
+            k = index[r, c]
+            if k < 0:
+                out[r, c] = np.nan
+                out_var[r, c] = np.nan
+                out_history[r, c] = 0
+                continue
+            y, x = k // w, k % w
             value = np.float64(values[y, x])
             z = 1.0 / value if disparity else value
-            px, py = (x - cx) * inv_fx * z, ny * z
-            zc = r20 * px + r21 * py + r22 * z + t2
+            zc = zbuf[r, c]
             inv = 1.0 / zc
-            uc = fu * (r00 * px + r01 * py + r02 * z + t0) * inv + cu
-            vc = fv * (r10 * px + r11 * py + r12 * z + t1) * inv + cv
+            out[r, c] = np.float32(inv if disparity else zc)
             ratio = z * inv
-            zs[x] = zc
-            moved[x] = inv if disparity else zc
-            ratios[x] = ratio
-            box[0, x], box[2, x] = uc - half_u * ratio, uc + half_u * ratio
-            box[1, x], box[3, x] = vc - half_v * ratio, vc + half_v * ratio
-        for x in range(w):  # ... and splatted
-            zc = zs[x]
-            if not zc > 0.0:  # behind the camera, or unknown
-                continue
-            u0, v0, u1, v1 = box[0, x], box[1, x], box[2, x], box[3, x]
-            if not (u0 < ow and u1 > -1.0 and v0 < oh and v1 > -1.0):
-                continue
-            c0, c1 = int(np.ceil(u0)), int(np.ceil(u1)) - 1
-            r0, r1 = int(np.ceil(v0)), int(np.ceil(v1)) - 1
-            if c0 > c1 or r0 > r1:  # covers no pixel centre: the one holding its centre
-                c0 = c1 = int(np.floor(0.5 * (u0 + u1) + 0.5))
-                r0 = r1 = int(np.floor(0.5 * (v0 + v1) + 0.5))
-            c0, c1, r0, r1 = max(c0, 0), min(c1, ow - 1), max(r0, 0), min(r1, oh - 1)
-            landed = np.float32(moved[x])
-            r2 = ratios[x] * ratios[x]
-            moved_var = np.float32(var[y, x] * r2 * r2 if disparity else var[y, x])
-            past = history[y, x]
-            for r in range(r0, r1 + 1):
-                for c in range(c0, c1 + 1):
-                    if zc < zbuf[r, c]:
-                        zbuf[r, c] = zc
-                        out[r, c] = landed
-                        out_var[r, c] = moved_var
-                        out_history[r, c] = past
+            r2 = ratio * ratio
+            out_var[r, c] = np.float32(var[y, x] * r2 * r2 if disparity else var[y, x])
+            out_history[r, c] = history[y, x]
 
 
-def _pinhole(camera: Intrinsics) -> F64:
-    return np.array([camera.fx, camera.fy, camera.cx, camera.cy])
-
-
-def _check_motion(rotation: F64, translation: F64) -> tuple[F64, F64]:
-    R = np.ascontiguousarray(rotation, np.float64)
-    t = np.ascontiguousarray(translation, np.float64).reshape(-1)
-    if R.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(R).all() and
-                                                    np.isfinite(t).all()):
-        raise ArgumentError('a motion needs a finite (3, 3) rotation and (3,) translation')
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-        raise ArgumentError('the rotation is not a rotation matrix')
-    return R, t
-
-
-def warp_state(state: TemporalState, camera: Intrinsics, rotation: F64, translation: F64,
-               disparity: bool, spare: TemporalState | None = None,
-               zbuf: F64 | None = None) -> TemporalState:
+def warp_state(state: TemporalState, camera: Intrinsics, motion: Motion, disparity: bool,
+               spare: TemporalState | None = None, landed: Splat | None = None
+               ) -> TemporalState:
     """The state moved into a camera that moved: each past pixel's point goes to
-    ``rotation @ X + translation`` in the new optical frame and covers the pixel centres
-    of its footprint there (the pixel's size scaled by the change of depth and focal
-    length; the nearest point wins where several land on one pixel). Its value is the new
-    Z there (``disparity``: 1 / Z), its variance and history come along; pixels nothing
-    lands on have no past.
+    ``R @ X + t`` (``motion``) in the new optical frame and covers the pixel centres of its
+    ``box`` footprint there (:func:`~depth_nodes.core.geometry.splat.splat`: the nearest
+    point wins where several land on one pixel). Its value is the new Z there
+    (``disparity``: 1 / Z), its variance and history come along; pixels nothing lands on
+    have no past.
 
-    ``spare`` (a state of the same size no longer needed) and ``zbuf`` (float64 of that
-    size) are written over instead of allocated, if given: a filter that warps every frame
-    reuses the same memory.
+    ``spare`` (a state of the same size no longer needed) and ``landed`` (the last call's
+    splat) are written over instead of allocated, if given: a filter that warps every
+    frame reuses the same memory.
 
     Raises:
-        ArgumentError: A rotation that is not one.
+        ArgumentError: A motion that is not rigid.
     """
-    R, t = _check_motion(rotation, translation)
     shape = (camera.height, camera.width)
     out = spare if spare is not None and spare.values.shape == shape else fresh_state(camera)
-    out.values.fill(np.nan)
-    out.var.fill(np.nan)
-    out.history.fill(0)
     out.camera = camera
-    if zbuf is None or zbuf.shape != shape:
-        zbuf = np.empty(shape)
-    zbuf.fill(np.inf)
-    _warp_kernel(state.values, state.var, state.history, disparity, _pinhole(state.camera),
-                 _pinhole(camera), R, t, out.values, out.var, out.history, zbuf)
-    return out
-
-
-def warp_reference(state: TemporalState, camera: Intrinsics, rotation: F64,
-                   translation: F64, disparity: bool) -> TemporalState:
-    """Plain reference of :func:`warp_state` (for the tests): each target pixel takes, of
-    all the past points whose footprint covers its centre, the nearest. Small images only."""
-    R, t = _check_motion(rotation, translation)
-    src, dst = _pinhole(state.camera), _pinhole(camera)
-    h, w = state.values.shape
-    ys, xs = np.mgrid[0:h, 0:w]
-    with np.errstate(divide='ignore', invalid='ignore'):
-        z = (1.0 / state.values.astype(np.float64)) if disparity else \
-            state.values.astype(np.float64)
-    ok = state.values > 0
-    pts = np.stack([(xs - src[2]) / src[0] * z, (ys - src[3]) / src[1] * z, z], -1) @ R.T + t
-    zc = pts[..., 2]
-    ok &= zc > 0
-    with np.errstate(divide='ignore', invalid='ignore'):
-        uc = dst[0] * pts[..., 0] / zc + dst[2]
-        vc = dst[1] * pts[..., 1] / zc + dst[3]
-        hu, hv = 0.5 * dst[0] / src[0] * z / zc, 0.5 * dst[1] / src[1] * z / zc
-    out = fresh_state(camera)
-    best = np.full((camera.height, camera.width), np.inf)
-    for y, x in zip(*np.nonzero(ok), strict=True):
-        c0, c1 = np.ceil(uc[y, x] - hu[y, x]), np.ceil(uc[y, x] + hu[y, x]) - 1
-        r0, r1 = np.ceil(vc[y, x] - hv[y, x]), np.ceil(vc[y, x] + hv[y, x]) - 1
-        if c0 > c1 or r0 > r1:
-            c0 = c1 = np.floor(uc[y, x] + 0.5)
-            r0 = r1 = np.floor(vc[y, x] + 0.5)
-        for r in range(int(max(r0, 0)), int(min(r1, camera.height - 1)) + 1):
-            for c in range(int(max(c0, 0)), int(min(c1, camera.width - 1)) + 1):
-                if zc[y, x] < best[r, c]:
-                    best[r, c] = zc[y, x]
-                    out.values[r, c] = 1.0 / zc[y, x] if disparity else zc[y, x]
-                    ratio = z[y, x] / zc[y, x]
-                    out.var[r, c] = state.var[y, x] * (ratio ** 4 if disparity else 1.0)
-                    out.history[r, c] = state.history[y, x]
+    moved = splat(state.values, state.camera, camera, motion, footprint='box',
+                  inverse=disparity, into=landed)
+    _carry_kernel(state.values, state.var, state.history, disparity, moved.depth,
+                  moved.index, out.values, out.var, out.history)
     return out

@@ -8,8 +8,9 @@ inverse depth, standard deviation and confidence (:mod:`.matcher`, over the cost
 over time :mod:`.poses`.
 """
 
-from depth_nodes.core.mvs.geometry import Pose, SweepPlanes
+from depth_nodes.core.geometry import Pose
 from depth_nodes.core.mvs.matcher import MultiViewMatcher, MvsParams, MvsResult, SourceView
+from depth_nodes.core.mvs.planes import SweepPlanes
 from depth_nodes.core.mvs.stream import Frame, MvsStream, NoDepth, StreamDepth, StreamParams
 
 __all__ = ['Frame', 'MultiViewMatcher', 'MvsParams', 'MvsResult', 'MvsStream', 'NoDepth',

@@ -33,9 +33,9 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
-from depth_nodes.core.depth_image import Intrinsics
+from depth_nodes.core.geometry import Intrinsics
 from depth_nodes.core.jit import no_nrt_kernel
-from depth_nodes.core.mvs.geometry import SweepPlanes
+from depth_nodes.core.mvs.planes import SweepPlanes
 from depth_nodes.core.sgm.brightness import matched_brightness
 from depth_nodes.core.sgm.census import census_dtype, census_transform, popcount
 from depth_nodes.errors import ArgumentError

@@ -4,8 +4,9 @@ same surfaces, in numba (no ROS).
 The state lives in the last reference view: per pixel an inverse depth ``rho`` (1/m, NaN
 where none), its variance, and two counts ``a`` and ``b``. A new reference first receives
 the state moved into it (:func:`warp_state`: every pixel's 3-D point moved by the camera
-motion and splatted to the nearest pixel, the nearest surface winning; the variance
-carried to first order plus process noise), then each pixel fuses its new measurement
+motion and splatted to the pixel holding it, the nearest surface winning, by the shared
+:func:`~depth_nodes.core.geometry.splat.splat`; the variance carried to first order plus
+process noise), then each pixel fuses its new measurement
 (:func:`fuse`) with one of two filters (:data:`FILTERS`):
 
 * ``kalman``: a Gaussian in inverse depth. A measurement within ``gate`` standard
@@ -39,13 +40,15 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from depth_nodes.core.geometry import Intrinsics, Motion, splat
 from depth_nodes.errors import ArgumentError
 
 __all__ = ['FILTERS', 'FilterSettings', 'FilterState', 'converged', 'fuse', 'fuse_reference',
-           'warp_state', 'warp_state_reference']
+           'warp_state']
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
 FILTERS = ('kalman', 'gauss_uniform')
 _METHOD = {'kalman': 0, 'gauss_uniform': 1}
 #: Beta counts of a new pixel of the ``gauss_uniform`` filter (SVO's start).
@@ -144,103 +147,52 @@ class FilterState:
 
 # ------------------------------------------------------------------------- moving the state
 @njit(cache=True, nogil=True)
-def _warp_kernel(rho: F32, var: F32, a: F32, b: F32, k_inv: F64, k_new: F64,
-                 rotation: F64, translation: F64, process: float, out_rho: F32,
-                 out_var: F32, out_a: F32, out_b: F32) -> None:
-    h, w = rho.shape
-    nh, nw = out_rho.shape
-    for y in range(nh):
-        for x in range(nw):
-            out_rho[y, x] = np.nan
-            out_var[y, x] = 0.0
-            out_a[y, x] = 0.0
-            out_b[y, x] = 0.0
-    for y in range(h):
-        for x in range(w):
-            r = rho[y, x]
-            if not (r > 0 and math.isfinite(r)):
+def _carry_kernel(rho: F32, var: F32, a: F32, b: F32, zbuf: F64, index: I64, t_z: float,
+                  process: float, out_rho: F32, out_var: F32, out_a: F32, out_b: F32) -> None:
+    """Each landed pixel's estimate: the new inverse depth, the variance carried to first
+    order plus process noise, the counts as they were."""
+    oh, ow = zbuf.shape
+    w = rho.shape[1]
+    for y in range(oh):
+        for x in range(ow):
+            k = index[y, x]
+            if k < 0:
+                out_rho[y, x] = np.nan
+                out_var[y, x] = 0.0
+                out_a[y, x] = 0.0
+                out_b[y, x] = 0.0
                 continue
-            rx = k_inv[0, 0] * x + k_inv[0, 1] * y + k_inv[0, 2]
-            ry = k_inv[1, 0] * x + k_inv[1, 1] * y + k_inv[1, 2]
-            rz = k_inv[2, 0] * x + k_inv[2, 1] * y + k_inv[2, 2]
-            # the point r / rho in the new frame, scaled by rho: (R r + t rho)
-            qx = rotation[0, 0] * rx + rotation[0, 1] * ry + rotation[0, 2] * rz
-            qy = rotation[1, 0] * rx + rotation[1, 1] * ry + rotation[1, 2] * rz
-            qz = rotation[2, 0] * rx + rotation[2, 1] * ry + rotation[2, 2] * rz
-            sx = qx + translation[0] * r
-            sy = qy + translation[1] * r
-            sz = qz + translation[2] * r
-            if not sz > 1e-12:
-                continue
-            u = (k_new[0, 0] * sx + k_new[0, 1] * sy + k_new[0, 2] * sz) / sz
-            v = (k_new[1, 0] * sx + k_new[1, 1] * sy + k_new[1, 2] * sz) / sz
-            if not (-0.5 <= u < nw - 0.5 and -0.5 <= v < nh - 0.5):
-                continue
-            xi = math.floor(u + 0.5)
-            yi = math.floor(v + 0.5)
-            new_rho = r / sz  # 1 / Z_new, with Z_new = sz / r
-            old = out_rho[yi, xi]
-            if math.isfinite(old) and old >= new_rho:  # a nearer surface is there already
-                continue
-            gain = qz / (sz * sz)  # d rho_new / d rho
-            out_rho[yi, xi] = new_rho
-            out_var[yi, xi] = var[y, x] * gain * gain + (process * new_rho) ** 2
-            out_a[yi, xi] = a[y, x]
-            out_b[yi, xi] = b[y, x]
+            sy, sx = k // w, k % w
+            r = np.float64(rho[sy, sx])
+            z_new = zbuf[y, x]
+            new_rho = 1.0 / z_new
+            # rho_new = rho / (q_z + t_z rho), q_z the old ray's z in the new frame:
+            # d rho_new / d rho = q_z / (q_z + t_z rho)^2 = (Z_new - t_z) / (Z_new^2 rho)
+            gain = (z_new - t_z) / (z_new * z_new * r)
+            out_rho[y, x] = new_rho
+            out_var[y, x] = var[sy, sx] * gain * gain + (process * new_rho) ** 2
+            out_a[y, x] = a[sy, sx]
+            out_b[y, x] = b[sy, sx]
 
 
-def warp_state(state: FilterState, k_old: F64, k_new: F64, relative: tuple[F64, F64],
-               shape: tuple[int, int], *, process_sigma: float) -> FilterState:
-    """``state`` moved from its view into a new one.
+def warp_state(state: FilterState, old: Intrinsics, new: Intrinsics, motion: Motion, *,
+               process_sigma: float) -> FilterState:
+    """``state`` moved from its view into a new one: each estimate's point splatted to the
+    new view's pixel holding it (:func:`~depth_nodes.core.geometry.splat.splat`, footprint
+    ``point``: a per-pixel state is not smeared), the nearest winning.
 
     Args:
         state: The state in the old view.
-        k_old: (3, 3) camera matrix of the old view.
-        k_new: (3, 3) camera matrix of the new view.
-        relative: ``(R, t)`` taking old-view points into the new view.
-        shape: (H, W) of the new view.
+        old: The old view's camera.
+        new: The new view's camera (the new state's size).
+        motion: ``(R, t)`` taking old-view points into the new view.
         process_sigma: Relative inverse-depth noise added to every moved estimate.
     """
-    out = FilterState.empty(shape)
-    rotation, translation = (np.asarray(v, np.float64) for v in relative)
-    k_inv = np.asarray(np.linalg.inv(k_old), np.float64)
-    _warp_kernel(state.rho, state.var, state.a, state.b, k_inv,
-                 np.asarray(k_new, np.float64), rotation, translation, float(process_sigma),
-                 out.rho, out.var, out.a, out.b)
-    return out
-
-
-def warp_state_reference(state: FilterState, k_old: F64, k_new: F64,
-                         relative: tuple[F64, F64], shape: tuple[int, int], *,
-                         process_sigma: float) -> FilterState:
-    """Plain numpy version of :func:`warp_state` (the same splatting order)."""
-    out = FilterState.empty(shape)
-    rotation, translation = (np.asarray(v, np.float64) for v in relative)
-    h, w = state.shape
-    k_inv = np.linalg.inv(k_old)
-    for y in range(h):
-        for x in range(w):
-            r = float(state.rho[y, x])
-            if not (r > 0 and math.isfinite(r)):
-                continue
-            ray = k_inv @ np.array([x, y, 1.0])
-            q = rotation @ ray
-            s = q + translation * r
-            if not s[2] > 1e-12:
-                continue
-            u, v = (np.asarray(k_new, np.float64) @ s)[:2] / s[2]
-            if not (-0.5 <= u < shape[1] - 0.5 and -0.5 <= v < shape[0] - 0.5):
-                continue
-            xi, yi = math.floor(u + 0.5), math.floor(v + 0.5)
-            new_rho = r / s[2]
-            old = float(out.rho[yi, xi])
-            if math.isfinite(old) and old >= new_rho:
-                continue
-            gain = q[2] / (s[2] * s[2])
-            out.rho[yi, xi] = new_rho
-            out.var[yi, xi] = state.var[y, x] * gain * gain + (process_sigma * new_rho) ** 2
-            out.a[yi, xi] = state.a[y, x]
-            out.b[yi, xi] = state.b[y, x]
+    out = FilterState.empty(new.shape)
+    landed = splat(state.rho, old, new, motion, footprint='point', inverse=True)
+    _carry_kernel(state.rho, state.var, state.a, state.b, landed.depth, landed.index,
+                  float(np.asarray(motion[1], np.float64).reshape(-1)[2]),
+                  float(process_sigma), out.rho, out.var, out.a, out.b)
     return out
 
 

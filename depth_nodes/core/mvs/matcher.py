@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from depth_nodes.core.depth_image import Intrinsics
+from depth_nodes.core.geometry import Intrinsics
 from depth_nodes.core.mvs.cost import (
     COSTS,
     MAX_SOURCES,
@@ -42,7 +42,7 @@ from depth_nodes.core.mvs.cost import (
     SweepCostInputs,
     sweep_cost_inputs,
 )
-from depth_nodes.core.mvs.geometry import FRONTO_PARALLEL, SweepPlanes
+from depth_nodes.core.mvs.planes import FRONTO_PARALLEL, SweepPlanes
 from depth_nodes.core.settings import check_settings, setting
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.errors import ArgumentError

@@ -1,4 +1,4 @@
-"""Depth for a stream of posed views: keyframes, the sweep against them, the depth filter
+"""Depth for a stream of posed views: keyframes, the sweep against them, the temporal filter
 and the geometric check, frame after frame (no ROS).
 
 Every frame (:meth:`MvsStream.process`) is a reference: it is swept against the most
@@ -30,9 +30,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.depth_image import Intrinsics
+from depth_nodes.core.geometry import Intrinsics, Pose
 from depth_nodes.core.mvs.consistency import consistency
-from depth_nodes.core.mvs.cost import MAX_SOURCES, camera_matrix
+from depth_nodes.core.mvs.cost import MAX_SOURCES
 from depth_nodes.core.mvs.fusion import (
     FilterSettings,
     FilterState,
@@ -40,7 +40,6 @@ from depth_nodes.core.mvs.fusion import (
     fuse,
     warp_state,
 )
-from depth_nodes.core.mvs.geometry import Pose
 from depth_nodes.core.mvs.matcher import MultiViewMatcher, MvsParams, MvsResult, SourceView
 from depth_nodes.core.settings import check_settings, setting
 from depth_nodes.errors import ArgumentError
@@ -76,9 +75,10 @@ class StreamParams:
     delay: int = setting(0, 'Frames the depth of a view waits for: its sweep then also '
                          'uses the views that came after it (points hidden from one side '
                          'are seen from the other), at that latency', low=0, high=16)
-    depth_filter: str = setting('kalman', 'kalman (inverse-depth Kalman filter with outlier '
-                                'gate), gauss_uniform (Vogiatzis-Hernandez / REMODE) or none '
-                                '(each frame alone)', choices=FILTER_CHOICES)
+    temporal_filter: str = setting('kalman', 'kalman (inverse-depth Kalman filter with '
+                                   'outlier gate), gauss_uniform (Vogiatzis-Hernandez / '
+                                   'REMODE) or none (each frame alone)',
+                                   choices=FILTER_CHOICES)
     process_sigma: float = setting(0.002, 'Relative inverse-depth noise added when the '
                                    'filter state moves to the next frame', low=0.0, high=0.5)
     correlation: float = setting(0.5, 'Share of a new estimate\'s variance added to the '
@@ -103,7 +103,7 @@ class StreamParams:
 
     def filter_settings(self, rho_range: float) -> FilterSettings:
         """The filter's settings (``rho_range``: the sweep's inverse-depth span)."""
-        method = 'kalman' if self.depth_filter == 'none' else self.depth_filter
+        method = 'kalman' if self.temporal_filter == 'none' else self.temporal_filter
         return FilterSettings(method=method, process_sigma=self.process_sigma,
                               correlation=self.correlation,
                               converge_sigma=self.converge_sigma, rho_range=rho_range)
@@ -118,12 +118,15 @@ class Frame:
         camera: Its pinhole camera (the image's size).
         pose: Its optical frame in the world.
         stamp_ns: Its stamp.
+        context: What the caller wants back with the frame's depth (a node: the frame's
+            header and CameraInfo); the stream never reads it.
     """
 
     image: NDArray[Any]
     camera: Intrinsics
     pose: Pose
     stamp_ns: int = 0
+    context: Any = None
 
 
 @dataclass
@@ -214,7 +217,7 @@ class MvsStream:
         stream.validate()
         if (params.min_depth, params.max_depth) != (self.params.min_depth,
                                                     self.params.max_depth) or \
-                stream.depth_filter != self.stream.depth_filter:
+                stream.temporal_filter != self.stream.temporal_filter:
             self._previous = None
         self.params, self.stream = params, stream
         self.matcher.set_params(params)
@@ -346,11 +349,11 @@ class MvsStream:
     def _contradicted(self, frame: Frame, keyframes: list[_Keyframe],
                       result: MvsResult) -> NDArray[np.bool_] | None:
         """The pixels whose new depth the keyframes' depths contradict, none confirming."""
-        others = [(k.depth, camera_matrix(k.camera), frame.pose.relative_to(k.pose))
+        others = [(k.depth, k.camera.matrix, frame.pose.relative_to(k.pose))
                   for k in keyframes if k.depth is not None]
         if not others:
             return None
-        checked, agreed = consistency(result.depth, camera_matrix(frame.camera), others,
+        checked, agreed = consistency(result.depth, frame.camera.matrix, others,
                                       max_px=self.stream.check_px,
                                       max_relative=self.stream.check_relative)
         out: NDArray[np.bool_] = (checked > 0) & (agreed == 0)
@@ -366,12 +369,11 @@ class MvsStream:
             planes.inverse_depths()[-1] - planes.inverse_depths()[0])
         shape = result.rho.shape
         previous = self._previous
-        if self.stream.depth_filter == 'none' or previous is None:
+        if self.stream.temporal_filter == 'none' or previous is None:
             state = FilterState.empty(shape)
         else:
-            state = warp_state(previous.state, camera_matrix(previous.camera),
-                               camera_matrix(frame.camera),
-                               previous.pose.relative_to(frame.pose), shape,
+            state = warp_state(previous.state, previous.camera, frame.camera,
+                               previous.pose.relative_to(frame.pose),
                                process_sigma=settings.process_sigma)
         rho = result.rho
         if contradicted is not None:
@@ -381,7 +383,7 @@ class MvsStream:
         self._previous = _Previous(state, frame.camera, frame.pose)
         depth = state.depth()
         sigma = state.depth_sigma()
-        done = converged(state, settings) if self.stream.depth_filter != 'none' else \
+        done = converged(state, settings) if self.stream.temporal_filter != 'none' else \
             np.zeros(shape, bool)
         confidence = np.where(np.isfinite(depth), result.confidence, 0.0).astype(np.float32)
         confidence[np.isfinite(depth) & ~np.isfinite(rho)] = 0.5  # the filter's alone

@@ -22,11 +22,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.camera import EQUIDISTANT, CameraModel
+from depth_nodes.core.geometry.rotation import ROTATION_TOLERANCE, rotation_error
 from depth_nodes.errors import CalibrationError
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
-_ROTATION_TOL = 1e-6
 _UNDISTORT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
 
 
@@ -63,8 +63,8 @@ class ProjectorGeometry:
         K_inv = np.linalg.inv(np.asarray(projector.K, dtype=np.float64).reshape(3, 3))
         R = K_inv @ P[:, :3]
         t = K_inv @ P[:, 3]
-        err = float(np.max(np.abs(R @ R.T - np.eye(3))))
-        if err > _ROTATION_TOL or np.linalg.det(R) < 0:
+        err = rotation_error(R)
+        if err > ROTATION_TOLERANCE:
             raise CalibrationError(f'projector P is not K_p [R | t] with R a rotation: '
                                    f'|R R^T - I| = {err:.3g}, det {np.linalg.det(R):.6g}')
         return cls(camera, projector, R, t)

@@ -40,8 +40,7 @@ from nav_msgs.msg import Odometry
 from std_msgs.msg import Header
 
 from depth_nodes.core.camera import CameraModel
-from depth_nodes.core.depth_image import Intrinsics
-from depth_nodes.core.mvs.geometry import Pose
+from depth_nodes.core.geometry import Intrinsics, Pose
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image

@@ -32,8 +32,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.depth_image import Intrinsics
-from depth_nodes.core.mvs.geometry import Pose
+from depth_nodes.core.geometry import Intrinsics, Pose
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image

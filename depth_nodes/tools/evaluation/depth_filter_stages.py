@@ -29,8 +29,8 @@ from numpy.typing import NDArray
 
 from depth_nodes.core.depth_filter import DepthFilter, DepthFilterParams, stereo_sigma
 from depth_nodes.core.depth_filter.decimate import decimate
-from depth_nodes.core.depth_image import Intrinsics, intrinsics, to_metres
-from depth_nodes.core.mvs.geometry import Pose
+from depth_nodes.core.depth_image import to_metres
+from depth_nodes.core.geometry import Intrinsics, Pose, intrinsics
 from depth_nodes.errors import BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.image import image_to_array

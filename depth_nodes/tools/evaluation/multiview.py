@@ -35,10 +35,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.camera import CameraModel
-from depth_nodes.core.depth_image import Intrinsics, intrinsics, to_metres
+from depth_nodes.core.depth_image import to_metres
+from depth_nodes.core.geometry import Intrinsics, Pose, intrinsics
 from depth_nodes.core.mvs.consistency import consistency
 from depth_nodes.core.mvs.cost import camera_matrix
-from depth_nodes.core.mvs.geometry import Pose
 from depth_nodes.errors import BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.image import image_to_array
