@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from helpers import kernel_size
+from reference.sgm import cost_volume_reference, learned_cost_reference, unit_quantised_reference
 
 from depth_nodes.core.learned.network import (
     SHIPPED,
@@ -22,14 +23,8 @@ from depth_nodes.core.learned.network import (
     normalise,
 )
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
-from depth_nodes.core.sgm.cost import cost_inputs, cost_volume_reference
-from depth_nodes.core.sgm.learned_cost import (
-    QUANT,
-    learned_cost_reference,
-    learned_costs_from,
-    unit_quantised,
-    unit_quantised_reference,
-)
+from depth_nodes.core.sgm.cost import cost_inputs
+from depth_nodes.core.sgm.learned_cost import QUANT, learned_costs_from, unit_quantised
 from depth_nodes.errors import ArgumentError
 from depth_nodes.sim.stereo import StereoSimConfig, simulate_stereo
 
