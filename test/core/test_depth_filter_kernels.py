@@ -6,29 +6,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers import kernel_size
-
-from depth_nodes.core.depth_filter.decimate import (
-    decimate,
+from reference.depth_filter import (
     decimate_reference,
-    decimated_camera,
-)
-from depth_nodes.core.depth_filter.holes import (
-    fill_holes,
+    domain_reference,
     fill_reference,
-    fill_spread,
-    spread_reference,
-)
-from depth_nodes.core.depth_filter.params import HOLE_FILLING, PERSISTENCE, SPATIAL_HOLES
-from depth_nodes.core.depth_filter.spatial import (
-    noise_factor,
-    smoothed,
     spatial_reference,
-    spatial_smooth,
+    spread_reference,
+    temporal_reference,
 )
+
+from depth_nodes.core.depth_filter.decimate import decimate, decimated_camera
+from depth_nodes.core.depth_filter.domain import from_domain, to_domain
+from depth_nodes.core.depth_filter.holes import fill_holes, fill_spread
+from depth_nodes.core.depth_filter.params import HOLE_FILLING, PERSISTENCE, SPATIAL_HOLES
+from depth_nodes.core.depth_filter.spatial import noise_factor, smoothed, spatial_smooth
 from depth_nodes.core.depth_filter.temporal import (
     TemporalState,
     fresh_state,
-    temporal_reference,
     temporal_step,
     warp_reference,
     warp_state,
@@ -88,6 +82,30 @@ def test_decimated_camera_keeps_the_pixel_centres() -> None:
 def test_decimation_refuses_a_factor_out_of_range() -> None:
     with pytest.raises(ArgumentError, match='decimation factor'):
         decimate(np.ones((8, 8), np.float32), 9)
+
+
+# ------------------------------------------------------------------ domain
+
+@pytest.mark.kernels
+@pytest.mark.parametrize('disparity', [False, True])
+def test_domain_kernels_match_reference(disparity: bool) -> None:
+    z = _depth(11, SHAPE)
+    # unknown depths, and one so small that its inverse overflows float32
+    z[0, :5] = [0.0, -1.0, np.inf, np.nan, 1e-39]
+    sigma = np.random.default_rng(2).uniform(0.0, 0.05, SHAPE).astype(np.float32)
+    sigma[1, :2] = [np.nan, np.inf]
+    clean, v, var = to_domain(z, sigma, disparity)
+    back, sd = from_domain(v, var, disparity)
+    want_v, want_var, want_back, want_sd = domain_reference(z, sigma, disparity)
+    np.testing.assert_array_equal(v, want_v)
+    np.testing.assert_array_equal(var, want_var)
+    np.testing.assert_array_equal(back, want_back)
+    np.testing.assert_allclose(sd, want_sd, rtol=1e-6)
+    np.testing.assert_array_equal(np.isnan(clean), np.isnan(want_v))
+    assert np.isnan(v[0, :4]).all()
+    # a depth whose inverse overflows is unknown in the disparity domain only
+    assert bool(np.isnan(v[0, 4])) == disparity
+    assert np.isfinite(v).mean() > 0.7
 
 
 # ------------------------------------------------------------------ spatial
