@@ -13,22 +13,26 @@ import math
 import numpy as np
 import pytest
 from helpers import kernel_size
+from reference.mvs import (
+    consistency_reference,
+    fuse_reference,
+    parallax_reference,
+    sweep_cost_reference,
+)
 
 from depth_nodes.core.depth_image import Intrinsics
-from depth_nodes.core.mvs.consistency import consistency, consistency_reference
+from depth_nodes.core.mvs.consistency import consistency
 from depth_nodes.core.mvs.cost import sweep_cost_inputs, sweep_cost_volume
-from depth_nodes.core.mvs.cost_reference import sweep_cost_reference
 from depth_nodes.core.mvs.fusion import (
     FilterSettings,
     FilterState,
     converged,
     fuse,
-    fuse_reference,
     warp_state,
     warp_state_reference,
 )
 from depth_nodes.core.mvs.geometry import Pose, SweepPlanes, quaternion_of
-from depth_nodes.core.mvs.matcher import parallax, parallax_reference
+from depth_nodes.core.mvs.matcher import parallax
 from depth_nodes.core.transforms import quaternion_from_rpy, rotation_matrix
 from depth_nodes.errors import ArgumentError
 from depth_nodes.sim.scene import Material, Rect, Scene

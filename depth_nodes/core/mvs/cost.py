@@ -20,8 +20,8 @@ point, so a point hidden in some views is matched in the others. A label no view
 ``unseen_cost``. Layout as the stereo matcher's: the label innermost, uint8, so its
 aggregation and selection kernels run on this volume unchanged.
 
-:func:`~depth_nodes.core.mvs.cost_reference.sweep_cost_reference` is the plain numpy
-version the tests compare with.
+The plain numpy version the tests compare with is ``sweep_cost_reference`` in
+``test/reference/mvs.py``.
 """
 
 from __future__ import annotations
