@@ -30,6 +30,8 @@ from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]
 B = NDArray[np.bool_]
+
+
 @numba.njit(cache=True, nogil=True, error_model='numpy')
 def _fill_kernel(z: F32, mode: int, out: F32, filled: B) -> None:
     h, w = z.shape
