@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference.cross_check import fill_holes_reference, left_right_check_reference
 
 from depth_nodes.core.confidence import (
     DEFAULT_TERMS,
@@ -22,9 +23,7 @@ from depth_nodes.core.cross_check import (
     confidence_map,
     cross_check,
     fill_holes,
-    fill_holes_reference,
     left_right_check,
-    left_right_check_reference,
     median_filter,
     remove_speckles,
 )

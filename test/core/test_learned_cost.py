@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from helpers import kernel_size
+from reference.learned import conv3x3_reference, features_reference
 from reference.sgm import cost_volume_reference, learned_cost_reference, unit_quantised_reference
 
 from depth_nodes.core.learned.network import (
@@ -18,8 +19,6 @@ from depth_nodes.core.learned.network import (
     FeatureExtractor,
     FeatureNet,
     WeightsError,
-    conv3x3_reference,
-    features_reference,
     normalise,
 )
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
