@@ -65,8 +65,9 @@ VALID, INVALID, OCCLUDED, MISMATCH, SPECKLE, OUTSIDE = 0, 1, 2, 3, 4, 5
 FILL_MODES = ('background', 'labels')
 
 
-class ConfidenceModel(Protocol):
-    """A learned replacement of :func:`confidence_map` (``core/learned/confidence.py``)."""
+class ConfidenceScorer(Protocol):
+    """What scores the pixels in place of :func:`confidence_map`: the learned confidence
+    (:class:`~depth_nodes.core.learned.confidence.ConfidenceModel`)."""
 
     def confidence(self, raw: F32, cost_ratio: F32, difference: F32, labels: U8,
                    filled: Bool, max_diff: float) -> F32:
@@ -335,7 +336,7 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
                 keep_outside: bool = True, confidence_window: int = 9,
                 filled_confidence: float = 0.1,
                 terms: ConfidenceTerms = DEFAULT_TERMS,
-                model: ConfidenceModel | None = None) -> CrossCheckResult:
+                model: ConfidenceScorer | None = None) -> CrossCheckResult:
     """Left-right check, speckle removal, optional hole filling and median, confidence.
 
     Args:
