@@ -52,8 +52,8 @@ from depth_nodes.errors import ArgumentError
 
 __all__ = [
     'FILL_MODES', 'INVALID', 'MISMATCH', 'OCCLUDED', 'OUTSIDE', 'SPECKLE', 'VALID',
-    'CrossCheckResult', 'LeftRightCheck', 'confidence_map', 'cross_check', 'fill_holes',
-    'left_right_check', 'median_filter', 'remove_speckles',
+    'CrossCheckResult', 'LeftRightCheck', 'confidence_map', 'cross_check',
+    'fill_disparity_holes', 'left_right_check', 'median_filter', 'remove_speckles',
 ]
 
 F32 = NDArray[np.float32]
@@ -61,7 +61,7 @@ U8 = NDArray[np.uint8]
 Bool = NDArray[np.bool_]
 
 VALID, INVALID, OCCLUDED, MISMATCH, SPECKLE, OUTSIDE = 0, 1, 2, 3, 4, 5
-#: Hole-filling strategies of :func:`fill_holes`.
+#: Hole-filling strategies of :func:`fill_disparity_holes`.
 FILL_MODES = ('background', 'labels')
 
 
@@ -291,7 +291,7 @@ def _fill_kernel(disp: F32, valid: Bool, labels: U8, dirs: NDArray[np.int64],
                     out[y, x] = np.median(found[:n])
 
 
-def fill_holes(disparity: Any, labels: Any, *, mode: str = 'labels',
+def fill_disparity_holes(disparity: Any, labels: Any, *, mode: str = 'labels',
                keep: Any = None) -> tuple[F32, Bool]:
     """Fill holes from the background, or by label (see the module notes).
 
@@ -346,8 +346,8 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
         disp12_max_diff: Left-right threshold in px (> 0).
         speckle_size: Largest speckle area in px (0: no speckle removal).
         speckle_range: Largest step within one region, px.
-        fill: Fill holes (:func:`fill_holes`).
-        fill_mode: ``'background'`` or ``'labels'`` (:func:`fill_holes`).
+        fill: Fill holes (:func:`fill_disparity_holes`).
+        fill_mode: ``'background'`` or ``'labels'`` (:func:`fill_disparity_holes`).
         median_size: 0 (none), 3 or 5: median of the output (:func:`median_filter`).
         keep_outside: Keep pixels whose partner lies outside the right image (the
             matcher's extrapolated border strip); else they are dropped as occlusions.
@@ -378,7 +378,7 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
     filled = np.zeros(left.shape, np.bool_)
     out = np.where(valid, left, np.float32(np.nan)).astype(np.float32)
     if fill:
-        out, filled = fill_holes(left, labels, mode=fill_mode, keep=valid)
+        out, filled = fill_disparity_holes(left, labels, mode=fill_mode, keep=valid)
     if median_size:
         out = median_filter(out, median_size)
     if model is not None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from reference.cross_check import fill_holes_reference, left_right_check_reference
+from reference.cross_check import fill_disparity_holes_reference, left_right_check_reference
 
 from depth_nodes.core.confidence import (
     DEFAULT_TERMS,
@@ -22,7 +22,7 @@ from depth_nodes.core.cross_check import (
     VALID,
     confidence_map,
     cross_check,
-    fill_holes,
+    fill_disparity_holes,
     left_right_check,
     median_filter,
     remove_speckles,
@@ -121,9 +121,9 @@ class TestKernelsAgainstReferences:
         labels = rng.choice(np.array([VALID, INVALID, OCCLUDED, MISMATCH, SPECKLE], np.uint8),
                             disp.shape, p=[0.5, 0.1, 0.15, 0.15, 0.1])
         labels[3, :] = OCCLUDED  # a row without any valid pixel
-        got, filled = fill_holes(disp, labels, mode=mode)
+        got, filled = fill_disparity_holes(disp, labels, mode=mode)
         valid = labels == VALID
-        expected = fill_holes_reference(disp, valid, labels, mode)
+        expected = fill_disparity_holes_reference(disp, valid, labels, mode)
         np.testing.assert_array_equal(got, expected)
         np.testing.assert_array_equal(filled, ~valid & np.isfinite(expected))
         if mode == 'labels':
@@ -176,7 +176,7 @@ def test_occlusions_fill_from_the_background() -> None:
     estimate = left.copy()
     estimate[occluded] = FRONT  # what a matcher typically guesses there: the foreground
     labels = left_right_check(estimate, right, max_diff=1.0).labels
-    filled, mask = fill_holes(estimate, labels)
+    filled, mask = fill_disparity_holes(estimate, labels)
     band = np.zeros((H, W), bool)
     band[10:30, X0 - 12:X0] = True
     assert mask[band].all()
@@ -189,7 +189,7 @@ def test_mismatches_fill_from_the_neighbourhood() -> None:
     estimate[33:36, 100:103] = 14.0  # too far: the right view there sees 8, a mismatch
     labels = left_right_check(estimate, right, max_diff=1.0).labels
     assert (labels[33:36, 100:103] == MISMATCH).all()
-    filled, mask = fill_holes(estimate, labels)
+    filled, mask = fill_disparity_holes(estimate, labels)
     np.testing.assert_array_equal(filled[33:36, 100:103], BACK)
     assert mask[33:36, 100:103].all()
     estimate[33:36, 100:103] = 2.0  # too near: the right view at x - 2 sees the nearer wall
@@ -206,17 +206,17 @@ def test_background_mode_fills_every_hole_from_the_farther_side() -> None:
     estimate[occluded] = np.nan
     estimate[33:36, 100:103] = np.nan
     labels = left_right_check(estimate, right, max_diff=1.0).labels
-    filled, mask = fill_holes(estimate, labels, mode='background')
+    filled, mask = fill_disparity_holes(estimate, labels, mode='background')
     band = np.zeros((H, W), bool)
     band[10:30, X0 - 12:X0] = True
     np.testing.assert_array_equal(filled[band], BACK)
     np.testing.assert_array_equal(filled[33:36, 100:103], BACK)
     assert mask[band].all()
-    unfilled, mask = fill_holes(estimate, labels, mode='labels')
+    unfilled, mask = fill_disparity_holes(estimate, labels, mode='labels')
     assert np.isnan(unfilled[band]).all()
     assert not mask[band].any()
     with pytest.raises(ValueError, match='mode must be one of'):
-        fill_holes(estimate, labels, mode='nearest')
+        fill_disparity_holes(estimate, labels, mode='nearest')
 
 
 @pytest.mark.parametrize('size', [3, 5])
@@ -375,7 +375,7 @@ def test_cross_check_on_a_noisy_estimate() -> None:
      'max_diff must be a finite number >= 0'),
     (lambda: remove_speckles(np.zeros((4, 5)), max_size=-1, max_diff=1),
      'max_size must be an int >= 0'),
-    (lambda: fill_holes(np.zeros((4, 5)), np.zeros((4, 5), np.int32)),
+    (lambda: fill_disparity_holes(np.zeros((4, 5)), np.zeros((4, 5), np.int32)),
      'labels must be a uint8 array'),
     (lambda: confidence_map(np.zeros((4, 5)), np.zeros((4, 5)), np.ones((4, 5), bool),
                             window=4), 'window must be an odd int'),

@@ -48,7 +48,7 @@ def left_right_check_reference(disparity: F32, disparity_right: F32,
     return diff, labels
 
 
-def fill_holes_reference(disparity: F32, valid: Bool, labels: U8,
+def fill_disparity_holes_reference(disparity: F32, valid: Bool, labels: U8,
                          mode: str = 'labels') -> F32:
     """Plain Python version of the hole-filling kernel (tests compare against it)."""
     h, w = disparity.shape
