@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from depth_nodes.core.depth_image import Intrinsics
 from depth_nodes.core.mvs.cost import (
     COSTS,
+    DEPRECATED_COSTS,
     MAX_SOURCES,
     TOP_COST,
     SweepCostInputs,
@@ -68,10 +69,11 @@ class MvsParams:
     best_views: int = setting(2, 'Source views averaged per plane, the best ones (Kang et '
                               'al. 2001: occlusion-robust); capped by the views that see '
                               'the point', low=1, high=MAX_SOURCES)
-    matching_cost: str = setting('census_intensity', 'census_intensity: the stereo '
-                                 "matcher's cost (census Hamming and truncated intensity "
-                                 'difference, by their weights); zncc: a 3 x 3 window\'s '
-                                 'ZNCC (slower)', choices=COSTS)
+    matching_cost: str = setting('census', "census: the stereo matcher's cost (census "
+                                 'Hamming and truncated intensity difference, by their '
+                                 "weights); zncc: a 3 x 3 window's ZNCC (slower); "
+                                 'census_intensity: the old name of census (deprecated)',
+                                 choices=(*COSTS, *DEPRECATED_COSTS))
     census_width: int = setting(5, 'census window width (odd)', low=3, high=9, odd=True)
     census_height: int = setting(5, 'census window height (odd; width x height - 1 <= 63)',
                                  low=3, high=9, odd=True)
@@ -125,6 +127,11 @@ class MvsParams:
                                      'unopposed)')
     memory_mb: float = setting(160.0, 'memory for the cost volumes, MB (bands above it)',
                                low=0.0, high=1e6)
+
+    def __post_init__(self) -> None:
+        # a deprecated name of a cost (DEPRECATED_COSTS) stands for the cost it maps to
+        if isinstance(self.matching_cost, str) and self.matching_cost in DEPRECATED_COSTS:
+            object.__setattr__(self, 'matching_cost', DEPRECATED_COSTS[self.matching_cost])
 
     def validate(self, width: int | None = None) -> MvsParams:
         """Check every field (and, with ``width``, that the planes fit it); returns self.
