@@ -91,16 +91,6 @@ def outside_distance(disparity: F32) -> F32:
     return distance
 
 
-def _smoothness(disparity: F32, scale: float) -> F32:
-    finite = np.isfinite(disparity)
-    values = np.where(finite, disparity, 0.0).astype(np.float32)
-    count = box_mean(finite.astype(np.float32), SMOOTHNESS_WINDOW)
-    with np.errstate(invalid='ignore', divide='ignore'):
-        mean = box_mean(values, SMOOTHNESS_WINDOW) / count
-        deviation = np.where(finite & (count > 0), np.abs(disparity - mean), 0.0)
-    return (1.0 / (1.0 + np.square(deviation / scale))).astype(np.float32)
-
-
 def confidence_map(cost_ratio: Any, difference: Any, valid: Any, *, window: int = 5,
                    max_diff: float = 1.0, filled: Any = None,
                    filled_confidence: float = 0.1, disparity: Any = None,
@@ -143,48 +133,21 @@ def confidence_map(cost_ratio: Any, difference: Any, valid: Any, *, window: int 
     outside_scale = non_negative('outside_scale', terms.outside_scale)
     out = None if disparity is None else float_map('disparity', disparity, ratio.shape)
     fill = None if filled is None else np.asarray(filled, dtype=np.bool_)
-    args = (ratio, diff, keep, window, support_window, scale, factor, smooth_scale,
-            outside_scale, out, fill)
-    if all(a is None or a.dtype == np.float32 for a in (ratio, diff, out)):
-        return _confidence_f32(*args)
-    return confidence_reference(*args)
-
-
-def confidence_reference(ratio: NDArray[Any], diff: NDArray[Any], keep: NDArray[np.bool_],
-                         window: int, support_window: int, scale: float, factor: float,
-                         smooth_scale: float, outside_scale: float,
-                         out: NDArray[Any] | None, fill: NDArray[np.bool_] | None) -> F32:
-    """:func:`confidence_map` in numpy on checked inputs (any float dtype; the reference
-    of the float32 kernels in the tests)."""
-    distinct = (1.0 - np.clip(np.nan_to_num(ratio, nan=1.0), 0.0, 1.0)).astype(np.float32)
-    if window > 1:
-        distinct = box_mean(distinct, window)
-    with np.errstate(invalid='ignore', over='ignore'):
-        agree = 1.0 / (1.0 + np.square(np.nan_to_num(diff, nan=np.inf) / scale))
-    shared = distinct
-    if support_window > 1:
-        shared = shared * box_mean(keep.astype(np.float32), support_window)
-    if out is not None:
-        if smooth_scale > 0:
-            shared = shared * _smoothness(out, smooth_scale)
-        if outside_scale > 0:
-            outside = outside_distance(out)
-            extrapolated = np.isnan(diff) & (outside > 0)
-            agree = np.where(extrapolated, 1.0 / (1.0 + outside / outside_scale), agree)
-    conf = np.where(keep, shared * agree, 0.0)
-    if fill is not None:
-        conf = np.where(fill & ~keep, factor * shared, conf)
-    result: F32 = np.clip(conf, 0.0, 1.0).astype(np.float32)
-    return result
+    # float32 throughout, as the node's maps are: another float dtype is read as float32
+    return _confidence_f32(ratio.astype(np.float32, copy=False),
+                           diff.astype(np.float32, copy=False), keep, window, support_window,
+                           scale, factor, smooth_scale, outside_scale,
+                           None if out is None else out.astype(np.float32, copy=False), fill)
 
 
 def _confidence_f32(ratio: F32, diff: F32, keep: NDArray[np.bool_], window: int,
                     support_window: int, scale: float, factor: float, smooth_scale: float,
                     outside_scale: float, out: F32 | None,
                     fill: NDArray[np.bool_] | None) -> F32:
-    """:func:`confidence_reference` for float32 maps (what the node gets): two numba passes
-    around OpenCV's box filters, in float32 as numpy computes it, so the result is the
-    same bit for bit (tested). 7.8 ms at 640x480 in numpy, 3.6 ms this way."""
+    """:func:`confidence_map` on checked float32 maps: two numba passes around OpenCV's box
+    filters, in float32 as numpy computes it, so the result is the plain numpy definition's
+    bit for bit (``test/reference/confidence.py``). 7.8 ms at 640x480 in numpy, 3.6 ms this
+    way."""
     shape = ratio.shape
     have_out = out is not None
     disparity = out if out is not None else np.zeros((1, 1), np.float32)

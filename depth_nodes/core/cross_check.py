@@ -52,8 +52,8 @@ from depth_nodes.errors import ArgumentError
 
 __all__ = [
     'FILL_MODES', 'INVALID', 'MISMATCH', 'OCCLUDED', 'OUTSIDE', 'SPECKLE', 'VALID',
-    'CrossCheckResult', 'LeftRightCheck', 'confidence_map', 'cross_check', 'fill_holes',
-    'left_right_check', 'median_filter', 'remove_speckles',
+    'CrossCheckResult', 'LeftRightCheck', 'confidence_map', 'cross_check',
+    'fill_disparity_holes', 'left_right_check', 'median_filter', 'remove_speckles',
 ]
 
 F32 = NDArray[np.float32]
@@ -61,12 +61,13 @@ U8 = NDArray[np.uint8]
 Bool = NDArray[np.bool_]
 
 VALID, INVALID, OCCLUDED, MISMATCH, SPECKLE, OUTSIDE = 0, 1, 2, 3, 4, 5
-#: Hole-filling strategies of :func:`fill_holes`.
+#: Hole-filling strategies of :func:`fill_disparity_holes`.
 FILL_MODES = ('background', 'labels')
 
 
-class ConfidenceModel(Protocol):
-    """A learned replacement of :func:`confidence_map` (``core/learned/confidence.py``)."""
+class ConfidenceScorer(Protocol):
+    """What scores the pixels in place of :func:`confidence_map`: the learned confidence
+    (:class:`~depth_nodes.core.learned.confidence.ConfidenceModel`)."""
 
     def confidence(self, raw: F32, cost_ratio: F32, difference: F32, labels: U8,
                    filled: Bool, max_diff: float) -> F32:
@@ -218,30 +219,6 @@ def _lr_kernel(disp: F32, disp_right: F32, max_diff: float, diff: F32, labels: U
                 labels[y, x] = MISMATCH
 
 
-def left_right_check_reference(disparity: F32, disparity_right: F32,
-                               max_diff: float) -> tuple[F32, U8]:
-    """Plain numpy version of the left-right check kernel (tests compare against it)."""
-    h, w = disparity.shape
-    finite = np.isfinite(disparity)
-    xs = np.arange(w)[None, :]
-    with np.errstate(invalid='ignore'):
-        xr = np.floor(xs - np.where(finite, disparity, 0) + 0.5).astype(np.int64)
-    inside = finite & (xr >= 0) & (xr < w)
-    dr = np.full((h, w), np.nan, np.float32)
-    ys = np.nonzero(inside)[0]
-    dr[inside] = disparity_right[ys, xr[inside]]
-    has = inside & np.isfinite(dr)
-    diff = np.where(has, np.abs(disparity - dr), np.nan).astype(np.float32)
-    labels = np.full((h, w), INVALID, np.uint8)
-    labels[finite & ~has] = OCCLUDED
-    labels[finite & ~((xr >= 0) & (xr < w))] = OUTSIDE
-    with np.errstate(invalid='ignore'):
-        labels[has & (diff <= max_diff)] = VALID
-        labels[has & (diff > max_diff) & (dr > disparity + max_diff)] = OCCLUDED
-        labels[has & (diff > max_diff) & ~(dr > disparity + max_diff)] = MISMATCH
-    return diff, labels
-
-
 def left_right_check(disparity: Any, disparity_right: Any, *,
                      max_diff: float = 1.0) -> LeftRightCheck:
     """Compare the left disparity with the right view's at ``x - d``.
@@ -314,38 +291,7 @@ def _fill_kernel(disp: F32, valid: Bool, labels: U8, dirs: NDArray[np.int64],
                     out[y, x] = np.median(found[:n])
 
 
-def fill_holes_reference(disparity: F32, valid: Bool, labels: U8,
-                         mode: str = 'labels') -> F32:
-    """Plain Python version of the hole-filling kernel (tests compare against it)."""
-    h, w = disparity.shape
-    out = np.where(valid, disparity, np.nan).astype(np.float32)
-
-    def nearest(y: int, x: int, dy: int, dx: int) -> float:
-        y, x = y + dy, x + dx
-        while 0 <= y < h and 0 <= x < w:
-            if valid[y, x]:
-                return float(disparity[y, x])
-            y, x = y + dy, x + dx
-        return math.nan
-
-    for y in range(h):
-        for x in range(w):
-            if valid[y, x]:
-                continue
-            if mode == 'background' or labels[y, x] == OCCLUDED:
-                side = [v for v in (nearest(y, x, 0, -1), nearest(y, x, 0, 1))
-                        if math.isfinite(v)]
-                if side:
-                    out[y, x] = min(side)
-            elif labels[y, x] in (MISMATCH, SPECKLE):
-                around = [v for v in (nearest(y, x, int(dy), int(dx)) for dy, dx in _DIRECTIONS)
-                          if math.isfinite(v)]
-                if around:
-                    out[y, x] = float(np.median(around))
-    return out
-
-
-def fill_holes(disparity: Any, labels: Any, *, mode: str = 'labels',
+def fill_disparity_holes(disparity: Any, labels: Any, *, mode: str = 'labels',
                keep: Any = None) -> tuple[F32, Bool]:
     """Fill holes from the background, or by label (see the module notes).
 
@@ -390,7 +336,7 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
                 keep_outside: bool = True, confidence_window: int = 9,
                 filled_confidence: float = 0.1,
                 terms: ConfidenceTerms = DEFAULT_TERMS,
-                model: ConfidenceModel | None = None) -> CrossCheckResult:
+                model: ConfidenceScorer | None = None) -> CrossCheckResult:
     """Left-right check, speckle removal, optional hole filling and median, confidence.
 
     Args:
@@ -400,8 +346,8 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
         disp12_max_diff: Left-right threshold in px (> 0).
         speckle_size: Largest speckle area in px (0: no speckle removal).
         speckle_range: Largest step within one region, px.
-        fill: Fill holes (:func:`fill_holes`).
-        fill_mode: ``'background'`` or ``'labels'`` (:func:`fill_holes`).
+        fill: Fill holes (:func:`fill_disparity_holes`).
+        fill_mode: ``'background'`` or ``'labels'`` (:func:`fill_disparity_holes`).
         median_size: 0 (none), 3 or 5: median of the output (:func:`median_filter`).
         keep_outside: Keep pixels whose partner lies outside the right image (the
             matcher's extrapolated border strip); else they are dropped as occlusions.
@@ -432,7 +378,7 @@ def cross_check(disparity: Any, disparity_right: Any, cost_ratio: Any, *,
     filled = np.zeros(left.shape, np.bool_)
     out = np.where(valid, left, np.float32(np.nan)).astype(np.float32)
     if fill:
-        out, filled = fill_holes(left, labels, mode=fill_mode, keep=valid)
+        out, filled = fill_disparity_holes(left, labels, mode=fill_mode, keep=valid)
     if median_size:
         out = median_filter(out, median_size)
     if model is not None:

@@ -21,7 +21,8 @@ Decisions:
     * Arithmetic is float64, outputs float32: the only rounding is the final cast.
     * One numba pass over the pixels (:func:`_reproject_kernel`); the numpy version it
       replaced, 5x slower at 640x480 (many float64 temporaries and a reduction over the
-      points), is kept as :func:`reproject_reference` and the tests hold them equal.
+      points), is kept as the tests' reference (``reproject_reference`` in
+      ``test/reference/reproject.py``) and the tests hold them equal.
 """
 
 from __future__ import annotations
@@ -149,7 +150,8 @@ def _reproject_kernel(disparity: NDArray[Any], confidence: NDArray[Any], use_con
                       cx: float, cy: float, tx: float, ty: float, min_range: float,
                       max_range: float, points: F32, depth: F32,
                       valid: NDArray[np.bool_]) -> None:
-    """:func:`reproject_reference`'s arithmetic, one pixel at a time (float64, one cast)."""
+    """The numpy reference's arithmetic (``reproject_reference``), one pixel at a time
+    (float64, one cast)."""
     h, w = disparity.shape
     nan = np.float32(np.nan)
     for y in range(h):
@@ -178,40 +180,6 @@ def _reproject_kernel(disparity: NDArray[Any], confidence: NDArray[Any], use_con
             points[y, x, 2] = pz
             depth[y, x] = pz
             valid[y, x] = ok
-
-
-def reproject_reference(disparity: NDArray[Any], stereo: StereoModel, min_range: float,
-                        max_range: float, confidence: NDArray[Any] | None,
-                        min_confidence: float) -> Reprojection:
-    """The reprojection in plain numpy (the kernel's reference in the tests)."""
-    h, w = disparity.shape
-    P = stereo.left.projection
-    fx, fy, cx, cy, tx, ty = P[0, 0], P[1, 1], P[0, 2], P[1, 2], P[0, 3], P[1, 3]
-    fb = stereo.focal * stereo.baseline
-    den = disparity.astype(np.float64) + stereo.delta_cx
-    with np.errstate(invalid='ignore', divide='ignore'):
-        valid = np.isfinite(den) & (den > 0)
-        z = fb / np.where(valid, den, np.nan)
-        if min_range > 0:
-            valid &= z >= min_range
-        if max_range > 0:
-            valid &= z <= max_range
-        if confidence is not None:
-            valid &= confidence >= min_confidence
-    z[~valid] = np.nan
-    points = np.empty((h, w, 3), dtype=np.float32)
-    u = np.arange(w, dtype=np.float64) - cx
-    v = np.arange(h, dtype=np.float64) - cy
-    # an absurd but finite calibration can put points beyond float32: those are invalid
-    with np.errstate(over='ignore', invalid='ignore'):
-        points[..., 0] = (u[None, :] * z - tx) / fx
-        points[..., 1] = (v[:, None] * z - ty) / fy
-        points[..., 2] = z
-    beyond = valid & ~np.isfinite(points).all(axis=2)
-    if beyond.any():
-        valid &= ~beyond
-        points[beyond] = np.nan
-    return Reprojection(points=points, depth=points[..., 2].copy(), valid=valid)
 
 
 def depth_std(depth: NDArray[np.floating[Any]], focal: float, baseline: float,

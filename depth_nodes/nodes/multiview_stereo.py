@@ -65,7 +65,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from depth_nodes.core.depth_image import depth_to_points
 from depth_nodes.core.geometry import Intrinsics, Pose
-from depth_nodes.core.mvs.cost import MAX_SOURCES
+from depth_nodes.core.mvs.cost import DEPRECATED_COSTS, MAX_SOURCES
 from depth_nodes.core.mvs.fusion import FILTERS
 from depth_nodes.core.mvs.matcher import MvsParams
 from depth_nodes.core.mvs.stream import Frame, MvsStream, NoDepth, StreamDepth, StreamParams
@@ -207,9 +207,14 @@ class MultiViewStereoNode(DepthNode):
             if values.get(old):
                 self.get_logger().warning(f'parameter {old} is deprecated: it is now {new} '
                                           f'({old}: {values[old]} taken as {new})')
+        cost = values.get('matching_cost')
+        if cost in DEPRECATED_COSTS:
+            self.get_logger().warning(f'matching_cost {cost} is deprecated: it is now '
+                                      f'{DEPRECATED_COSTS[cost]} (taken as that)')
 
     def _on_renamed(self, params: list[Any]) -> SetParametersResult:
-        self._warn_renamed({p.name: p.value for p in params if p.name in RENAMED})
+        self._warn_renamed({p.name: p.value for p in params
+                            if p.name in RENAMED or p.name == 'matching_cost'})
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ inputs

@@ -92,7 +92,7 @@ for group in $WHICH; do
         --bbox -0.073568 0.021728 -0.012445 0.028855 0.181892 0.062736 > /dev/null
       # delay 1: each view is swept against both ring neighbours; uniqueness 15: the
       # background is dark and textureless
-      for cost in census_intensity zncc; do
+      for cost in census zncc; do
         printf '/**:\n  ros__parameters: {min_depth: 0.45, max_depth: 0.8, planes: 128, delay: 1, uniqueness_ratio: 15.0, matching_cost: %s}\n' \
           $cost > "$OUT/temple-$cost.yaml"
         $DN process "$OUT/temple" "$OUT/temple-$cost.out" --config config/multiview_pipeline.yaml \

@@ -6,30 +6,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers import kernel_size
-from reference.depth_filter import warp_reference
-
-from depth_nodes.core.depth_filter.decimate import (
-    decimate,
+from reference.depth_filter import (
     decimate_reference,
-    decimated_camera,
-)
-from depth_nodes.core.depth_filter.holes import (
-    fill_holes,
+    domain_reference,
     fill_reference,
-    fill_spread,
-    spread_reference,
-)
-from depth_nodes.core.depth_filter.params import HOLE_FILLING, PERSISTENCE, SPATIAL_HOLES
-from depth_nodes.core.depth_filter.spatial import (
-    noise_factor,
-    smoothed,
     spatial_reference,
-    spatial_smooth,
+    spread_reference,
+    temporal_reference,
+    warp_reference,
 )
+
+from depth_nodes.core.depth_filter.decimate import decimate, decimated_camera
+from depth_nodes.core.depth_filter.domain import from_domain, to_domain
+from depth_nodes.core.depth_filter.holes import fill_depth_holes, fill_spread
+from depth_nodes.core.depth_filter.params import HOLE_FILLING, PERSISTENCE, SPATIAL_HOLES
+from depth_nodes.core.depth_filter.spatial import noise_factor, smoothed, spatial_smooth
 from depth_nodes.core.depth_filter.temporal import (
     TemporalState,
     fresh_state,
-    temporal_reference,
     temporal_step,
     warp_state,
 )
@@ -88,6 +82,30 @@ def test_decimated_camera_keeps_the_pixel_centres() -> None:
 def test_decimation_refuses_a_factor_out_of_range() -> None:
     with pytest.raises(ArgumentError, match='decimation factor'):
         decimate(np.ones((8, 8), np.float32), 9)
+
+
+# ------------------------------------------------------------------ domain
+
+@pytest.mark.kernels
+@pytest.mark.parametrize('disparity', [False, True])
+def test_domain_kernels_match_reference(disparity: bool) -> None:
+    z = _depth(11, SHAPE)
+    # unknown depths, and one so small that its inverse overflows float32
+    z[0, :5] = [0.0, -1.0, np.inf, np.nan, 1e-39]
+    sigma = np.random.default_rng(2).uniform(0.0, 0.05, SHAPE).astype(np.float32)
+    sigma[1, :2] = [np.nan, np.inf]
+    clean, v, var = to_domain(z, sigma, disparity)
+    back, sd = from_domain(v, var, disparity)
+    want_v, want_var, want_back, want_sd = domain_reference(z, sigma, disparity)
+    np.testing.assert_array_equal(v, want_v)
+    np.testing.assert_array_equal(var, want_var)
+    np.testing.assert_array_equal(back, want_back)
+    np.testing.assert_allclose(sd, want_sd, rtol=1e-6)
+    np.testing.assert_array_equal(np.isnan(clean), np.isnan(want_v))
+    assert np.isnan(v[0, :4]).all()
+    # a depth whose inverse overflows is unknown in the disparity domain only
+    assert bool(np.isnan(v[0, 4])) == disparity
+    assert np.isfinite(v).mean() > 0.7
 
 
 # ------------------------------------------------------------------ spatial
@@ -186,7 +204,7 @@ def test_temporal_takes_a_large_change_at_once_and_smooths_a_small_one() -> None
 @pytest.mark.parametrize('mode', HOLE_FILLING)
 def test_fill_kernel_matches_reference(mode: str) -> None:
     z = _depth(3, SHAPE, holes=0.3)
-    got, got_f = fill_holes(z, mode)
+    got, got_f = fill_depth_holes(z, mode)
     want, want_f = fill_reference(z, mode)
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(got_f, want_f)
@@ -195,7 +213,7 @@ def test_fill_kernel_matches_reference(mode: str) -> None:
 @pytest.mark.kernels
 def test_spread_kernel_matches_reference() -> None:
     z = _depth(4, SHAPE, holes=0.3)
-    filled = fill_holes(z, 'fill_from_left')[1]
+    filled = fill_depth_holes(z, 'fill_from_left')[1]
     np.testing.assert_array_equal(fill_spread(z, filled), spread_reference(z, filled))
 
 
@@ -203,24 +221,24 @@ def test_fill_modes_on_a_hole_between_two_depths() -> None:
     z = np.array([[2.0, 2.0, 2.0, 2.0],
                   [2.0, np.nan, np.nan, 5.0],
                   [2.0, 5.0, 5.0, 5.0]], np.float32)
-    left, filled = fill_holes(z, 'fill_from_left')
+    left, filled = fill_depth_holes(z, 'fill_from_left')
     assert left[1].tolist() == [2.0, 2.0, 2.0, 5.0]
     assert filled.sum() == 2
     assert filled[1, 1:3].all()
     # around: left, upper-left, upper (filled), lower-left, lower (measured)
-    assert fill_holes(z, 'farthest_from_around')[0][1, 1:3].tolist() == [5.0, 5.0]
-    assert fill_holes(z, 'nearest_from_around')[0][1, 1:3].tolist() == [2.0, 2.0]
+    assert fill_depth_holes(z, 'farthest_from_around')[0][1, 1:3].tolist() == [5.0, 5.0]
+    assert fill_depth_holes(z, 'nearest_from_around')[0][1, 1:3].tolist() == [2.0, 2.0]
     # never from the right: a hole at the left border with depth only on its right
     right_only = np.array([[np.nan, 3.0]], np.float32)
     for mode in ('farthest_from_around', 'nearest_from_around'):
-        assert np.isnan(fill_holes(right_only, mode)[0][0, 0])
+        assert np.isnan(fill_depth_holes(right_only, mode)[0][0, 0])
     # both filled pixels span the 3 m step between the hole's ends
     assert fill_spread(z, filled)[1, 1:3].tolist() == [3.0, 3.0]
 
 
 def test_fill_from_left_leaves_a_hole_at_the_left_border() -> None:
     z = np.array([[np.nan, 1.0, np.nan]], np.float32)
-    out, filled = fill_holes(z, 'fill_from_left')
+    out, filled = fill_depth_holes(z, 'fill_from_left')
     assert np.isnan(out[0, 0])
     assert out[0, 2] == 1.0
     assert filled.tolist() == [[False, False, True]]

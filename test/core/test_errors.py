@@ -15,7 +15,7 @@ from depth_nodes.core.camera import CameraModel, StereoModel
 from depth_nodes.core.confidence import ConfidenceTerms, confidence_map
 from depth_nodes.core.cross_check import (
     cross_check,
-    fill_holes,
+    fill_disparity_holes,
     left_right_check,
     median_filter,
     remove_speckles,
@@ -90,9 +90,10 @@ CASES: list[tuple[str, Callable[[], Any], str]] = [
      'max_diff must be a finite number >= 0, got -1'),
     ('remove_speckles', lambda: remove_speckles(F, max_size=-1, max_diff=1),
      'max_size must be an int >= 0, got -1'),
-    ('fill_holes: labels', lambda: fill_holes(F, np.zeros((4, 6), np.int32)),
+    ('fill_disparity_holes: labels', lambda: fill_disparity_holes(F, np.zeros((4, 6), np.int32)),
      'labels must be a uint8 array of shape (4, 6)'),
-    ('fill_holes: mode', lambda: fill_holes(F, np.zeros((4, 6), np.uint8), mode='near'),
+    ('fill_disparity_holes: mode',
+     lambda: fill_disparity_holes(F, np.zeros((4, 6), np.uint8), mode='near'),
      "mode must be one of"),
     ('median_filter', lambda: median_filter(F, 4), 'size must be 3 or 5, got 4'),
     ('cross_check', lambda: cross_check(F, F, F, median_size=7),

@@ -11,25 +11,19 @@ import cv2
 import numpy as np
 import pytest
 from helpers import kernel_size
+from reference.learned import conv3x3_reference, features_reference
+from reference.sgm import cost_volume_reference, learned_cost_reference, unit_quantised_reference
 
 from depth_nodes.core.learned.network import (
     SHIPPED,
     FeatureExtractor,
     FeatureNet,
     WeightsError,
-    conv3x3_reference,
-    features_reference,
     normalise,
 )
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
-from depth_nodes.core.sgm.cost import cost_inputs, cost_volume_reference
-from depth_nodes.core.sgm.learned_cost import (
-    QUANT,
-    learned_cost_reference,
-    learned_costs_from,
-    unit_quantised,
-    unit_quantised_reference,
-)
+from depth_nodes.core.sgm.cost import cost_inputs
+from depth_nodes.core.sgm.learned_cost import QUANT, learned_costs_from, unit_quantised
 from depth_nodes.errors import ArgumentError
 from depth_nodes.sim.stereo import StereoSimConfig, simulate_stereo
 

@@ -13,7 +13,13 @@ import math
 import numpy as np
 import pytest
 from helpers import kernel_size
-from reference.mvs import warp_state_reference
+from reference.mvs import (
+    consistency_reference,
+    fuse_reference,
+    parallax_reference,
+    sweep_cost_reference,
+    warp_state_reference,
+)
 
 from depth_nodes.core.geometry import (
     Intrinsics,
@@ -21,19 +27,18 @@ from depth_nodes.core.geometry import (
     quaternion_from_rpy,
     rotation_matrix,
 )
-from depth_nodes.core.mvs.consistency import consistency, consistency_reference
-from depth_nodes.core.mvs.cost import sweep_cost_inputs, sweep_cost_volume
-from depth_nodes.core.mvs.cost_reference import sweep_cost_reference
+from depth_nodes.core.mvs.consistency import consistency
+from depth_nodes.core.mvs.cost import DEPRECATED_COSTS, sweep_cost_inputs, sweep_cost_volume
 from depth_nodes.core.mvs.fusion import (
     FilterSettings,
     FilterState,
     converged,
     fuse,
-    fuse_reference,
     warp_state,
 )
-from depth_nodes.core.mvs.matcher import parallax, parallax_reference
+from depth_nodes.core.mvs.matcher import MvsParams, parallax
 from depth_nodes.core.mvs.planes import SweepPlanes
+from depth_nodes.core.settings import problem, rule_of
 from depth_nodes.errors import ArgumentError
 from depth_nodes.sim.scene import Material, Rect, Scene
 from depth_nodes.sim.sequence import (
@@ -132,7 +137,7 @@ def test_a_label_no_source_sees_gets_the_unseen_cost() -> None:
     ({'sources': [np.zeros((10, 10), np.uint8)]}, 'every source'),
     ({'best_k': 4}, 'best_k'),
     ({'unseen_cost': 255}, 'unseen_cost'),
-    ({'cost': 'ncc'}, "cost 'ncc' is not one of census_intensity, zncc"),
+    ({'cost': 'ncc'}, "cost 'ncc' is not one of census, zncc"),
 ])
 def test_sweep_inputs_refuse_what_does_not_fit(change: dict[str, object],
                                                 message: str) -> None:
@@ -145,6 +150,25 @@ def test_sweep_inputs_refuse_what_does_not_fit(change: dict[str, object],
         sweep_cost_inputs(ref.image, ref.intrinsics, sources,  # type: ignore[arg-type]
                           [ref.intrinsics] * n, [ref.pose.relative_to(views[0].pose)] * n,
                           SweepPlanes(0.9, 8.0, 6), **kwargs)  # type: ignore[arg-type]
+
+
+def test_census_intensity_still_means_census() -> None:
+    """multiview_stereo's matching_cost called census + intensity census_intensity before
+    it took sgm_stereo's name, census; for one more release the old name is that cost."""
+    assert DEPRECATED_COSTS == {'census_intensity': 'census'}
+    volume = sweep_cost_volume(_inputs(cost='census'))  # type: ignore[arg-type]
+    assert volume.min() < volume.max()
+    np.testing.assert_array_equal(
+        sweep_cost_volume(_inputs(cost='census_intensity')), volume)  # type: ignore[arg-type]
+    np.testing.assert_array_equal(sweep_cost_volume(_inputs()), volume)  # type: ignore[arg-type]
+    params = MvsParams(matching_cost='census_intensity').validate()
+    assert params.matching_cost == 'census'
+    assert params == MvsParams()
+    # the rule the node declares its parameter with takes the old name, and no other
+    rule = rule_of(MvsParams, 'matching_cost')
+    assert problem(rule, 'census_intensity') is None
+    assert problem(rule, 'census') is None
+    assert problem(rule, 'intensity') == 'must be one of census, zncc, census_intensity'
 
 
 def test_the_true_plane_has_the_lowest_cost_on_a_textured_plane() -> None:

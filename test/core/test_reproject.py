@@ -14,14 +14,10 @@ import re
 import numpy as np
 import pytest
 from helpers import Lazy
+from reference.reproject import reproject_reference
 
 from depth_nodes.core.camera import CameraModel, StereoModel
-from depth_nodes.core.reproject import (
-    depth_std,
-    depth_to_millimetres,
-    reproject_disparity,
-    reproject_reference,
-)
+from depth_nodes.core.reproject import depth_std, depth_to_millimetres, reproject_disparity
 from depth_nodes.core.sgm import sgm_match
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 

@@ -13,9 +13,10 @@ import numba
 import numpy as np
 import pytest
 from helpers import kernel_size
+from reference.sgm import aggregate_path_reference, cost_volume_reference
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams, bands, workspace
-from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS, aggregate_path_reference
+from depth_nodes.core.sgm.aggregate import VERTICAL_DIRECTIONS
 from depth_nodes.core.sgm.bands import (
     CACHED_BAND_BYTES,
     CELL_BYTES,
@@ -26,7 +27,6 @@ from depth_nodes.core.sgm.bands import (
     run_tasks,
     worker_cpus,
 )
-from depth_nodes.core.sgm.cost import cost_volume_reference
 
 
 def _pair(h: int, w: int, shift: int = 4, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -6,15 +6,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers import kernel_size
+from reference.sgm import (
+    aggregate_reference,
+    census_transform_reference,
+    check_disparity_reference,
+    cost_volume_reference,
+    select_reference,
+)
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
-from depth_nodes.core.sgm.aggregate import aggregate_reference
 from depth_nodes.core.sgm.border import fill_outside, mean_best_cost
 from depth_nodes.core.sgm.brightness import GAIN_LIMITS, matched_brightness
-from depth_nodes.core.sgm.census import census_dtype, census_transform, census_transform_reference
-from depth_nodes.core.sgm.check import check_disparity, check_disparity_reference
-from depth_nodes.core.sgm.cost import cost_volume, cost_volume_reference
-from depth_nodes.core.sgm.select import select_reference
+from depth_nodes.core.sgm.census import census_dtype, census_transform
+from depth_nodes.core.sgm.check import check_disparity
+from depth_nodes.core.sgm.cost import cost_volume
 
 
 def _outside(shape: tuple[int, int, int], min_disparity: int) -> np.ndarray:

@@ -12,13 +12,11 @@ import numba
 import numpy as np
 import pytest
 from helpers import REAL_DATA, REAL_PAIRS, kernel_size
+from reference.sgm import aggregate_reference, cost_volume_reference, select_reference, window_mask
 
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
-from depth_nodes.core.sgm.aggregate import aggregate_reference
 from depth_nodes.core.sgm.coarse import ALIGN, NEAR_RADIUS, coarse_window, search_ranges
-from depth_nodes.core.sgm.cost import cost_volume_reference
-from depth_nodes.core.sgm.ranged import flat_offsets, window_mask
-from depth_nodes.core.sgm.select import select_reference
+from depth_nodes.core.sgm.ranged import flat_offsets
 from depth_nodes.errors import ArgumentError
 
 #: A cost no path through a window can reach (the reference's "outside the window").

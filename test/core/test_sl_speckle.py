@@ -13,11 +13,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from reference.structured_light import match_speckle_reference
 
 from depth_nodes.core.structured_light import (
     SpeckleMatcher,
     match_speckle,
-    match_speckle_reference,
     shift_range,
     shift_to_depth,
     speckle_depth,

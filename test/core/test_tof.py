@@ -15,6 +15,7 @@ import dataclasses
 import numpy as np
 import pytest
 from helpers import Lazy, kernel_size
+from reference.tof import flying_reference, phasors_reference
 
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.tof import (
@@ -26,10 +27,8 @@ from depth_nodes.core.tof import (
     ToFParams,
     check_frequencies,
     decode_tof,
-    flying_reference,
     phase_of,
     phasors,
-    phasors_reference,
     remove_flying_pixels,
     unambiguous_range,
     unwrap,

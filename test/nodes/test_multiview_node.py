@@ -239,6 +239,24 @@ def test_the_parameters_are_checked_like_the_core(context: Context) -> None:
         node.destroy_node()
 
 
+def test_the_old_name_of_the_census_cost_is_still_accepted(context: Context) -> None:
+    """matching_cost census_intensity, census's name before it took sgm_stereo's, still
+    starts the node and still sets while it runs, as census (test_mvs_kernels.py holds
+    the two names to the same cost volume); any other name is refused with the choices."""
+    node = _make(context, matching_cost='census_intensity')
+    try:
+        assert node.params.values['matching_cost'] == 'census_intensity'
+        assert node.stream.params.matching_cost == 'census'
+        assert node.set_parameters([Parameter('matching_cost', value='zncc')])[0].successful
+        result = node.set_parameters([Parameter('matching_cost', value='census_intensity')])[0]
+        assert result.successful, result.reason
+        refused = node.set_parameters([Parameter('matching_cost', value='intensity')])[0]
+        assert not refused.successful
+        assert 'one of census, zncc, census_intensity' in refused.reason
+    finally:
+        node.destroy_node()
+
+
 def test_delayed_depth_comes_with_its_own_stamp_and_flushes_at_the_end(
         context: Context) -> None:
     node = _make(context, delay=2)

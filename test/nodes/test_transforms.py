@@ -1,4 +1,4 @@
-"""Camera transforms (depth_nodes.core.transforms) against rotation matrices, and the
+"""Camera transforms (depth_nodes.core.geometry.rotation) against rotation matrices, and the
 static_transform node that latches one on /tf_static."""
 
 from __future__ import annotations

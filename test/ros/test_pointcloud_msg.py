@@ -7,6 +7,7 @@ import array
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
+from reference.pointcloud import pack_points_reference
 from ros_helpers import header
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import PointCloud2, PointField
@@ -18,7 +19,6 @@ from depth_nodes.ros.pointcloud import (
     _layout,
     build_pointcloud,
     pack_points,
-    pack_points_reference,
     read_pointcloud,
 )
 

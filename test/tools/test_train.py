@@ -10,9 +10,10 @@ import cv2
 import numpy as np
 import pytest
 from helpers import run_cli
+from reference.learned import features_reference
 
 from depth_nodes.core.learned.confidence import ConfidenceModel
-from depth_nodes.core.learned.network import FeatureNet, features_reference, normalise
+from depth_nodes.core.learned.network import FeatureNet, normalise
 from depth_nodes.tools.train.confidence import ConfidenceConfig, train_confidence
 from depth_nodes.tools.train.cost import TrainConfig, forward, init_params, load_jax, train
 from depth_nodes.tools.train.data import DataConfig, augment, split, triplets

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from depth_nodes.core.depth_filter.decimate import decimate, decimated_camera
 from depth_nodes.core.depth_filter.domain import from_domain, to_domain
-from depth_nodes.core.depth_filter.holes import fill_holes, fill_spread
+from depth_nodes.core.depth_filter.holes import fill_depth_holes, fill_spread
 from depth_nodes.core.depth_filter.params import SPATIAL_HOLES, DepthFilterParams
 from depth_nodes.core.depth_filter.spatial import noise_factor, scale_smoothed, spatial_smooth
 from depth_nodes.core.depth_filter.temporal import (
@@ -152,7 +152,7 @@ class DepthFilter:
         z, out_sigma = from_domain(v, var_v, disparity)
         if params.hole_filling != 'off':
             measured = z
-            z, filled_h = fill_holes(z, params.hole_filling)
+            z, filled_h = fill_depth_holes(z, params.hole_filling)
             if filled_h.any():
                 out_sigma[filled_h] = fill_spread(measured, filled_h)[filled_h] / 2
                 filled |= filled_h

@@ -3,8 +3,8 @@ valid pixels for ``n`` of 2 or 3 and their mean above (librealsense's rule); a b
 no valid pixel is unknown. The variance of the result is that of a mean of the block's
 valid pixels (times pi / 2 for a median of three or more).
 
-:func:`decimate` is the kernel's wrapper, :func:`decimate_reference` the plain numpy
-definition the tests compare it with.
+:func:`decimate` is the kernel's wrapper; the plain numpy definition the tests compare
+it with is ``decimate_reference`` in ``test/reference/depth_filter.py``.
 """
 
 from __future__ import annotations
@@ -111,28 +111,4 @@ def decimate(depth: F32, factor: int, var: F32 | None = None) -> tuple[F32, F32]
     out = np.empty(shape, np.float32)
     out_var = np.empty(shape, np.float32)
     _decimate_kernel(z, v, factor, factor <= 3, out, out_var)
-    return out, out_var
-
-
-def decimate_reference(depth: F32, factor: int, var: F32 | None = None) -> tuple[F32, F32]:
-    """Plain numpy reference of :func:`decimate` (for the tests)."""
-    z, v = _check(depth, var, factor)
-    h, w = z.shape[0] // factor, z.shape[1] // factor
-    out = np.full((h, w), np.nan, np.float32)
-    out_var = np.full((h, w), np.nan, np.float32)
-    for oy in range(h):
-        for ox in range(w):
-            zb = z[oy * factor:(oy + 1) * factor, ox * factor:(ox + 1) * factor].ravel()
-            vb = v[oy * factor:(oy + 1) * factor, ox * factor:(ox + 1) * factor].ravel()
-            keep = (zb > 0) & (zb < np.inf)
-            n = int(keep.sum())
-            if not n:
-                continue
-            spread = vb[keep].sum() / n ** 2
-            if factor <= 3 and n > 2:
-                out[oy, ox] = np.median(zb[keep])
-                out_var[oy, ox] = spread * MEDIAN_VARIANCE
-            else:
-                out[oy, ox] = zb[keep].mean()
-                out_var[oy, ox] = spread
     return out, out_var

@@ -1,7 +1,8 @@
 """The filter's domain: a depth image and its variance in, the values the spatial and
 temporal stages average out (1 / Z in the disparity domain, Z in the depth domain) and
 their variance, and back. One pass each way over the image (:func:`to_domain`,
-:func:`from_domain`); :func:`domain_reference` is the plain definition of both.
+:func:`from_domain`); the plain definition of both is ``domain_reference`` in
+``test/reference/depth_filter.py``.
 
 In the disparity domain ``var(1 / Z) = var(Z) / Z^4`` (first order), and back; a depth so
 small that its inverse overflows float32 is unknown there.
@@ -85,21 +86,3 @@ def from_domain(values: F32, var: F32, disparity: bool) -> tuple[F32, F32]:
     sigma = np.empty(v.shape, np.float32)
     _from_kernel(v, np.ascontiguousarray(var, np.float32), disparity, z, sigma)
     return z, sigma
-
-
-def domain_reference(depth: F32, sigma: F32 | None, disparity: bool
-                     ) -> tuple[F32, F32, F32, F32]:
-    """Plain numpy reference of :func:`to_domain` and then :func:`from_domain`: the
-    values, their variance, and the depth and standard deviation they give back."""
-    z = np.asarray(depth, np.float32)
-    s2 = np.zeros(z.shape, np.float32) if sigma is None else \
-        np.square(np.asarray(sigma, np.float32))
-    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
-        inv = (np.float32(1.0) / z).astype(np.float32)
-        ok = (z > 0) & (z < np.inf) & (~np.isinf(inv) if disparity else True)
-        v = np.where(ok, inv if disparity else z, np.nan).astype(np.float32)
-        var = np.where(ok, s2 * (inv * inv) * (inv * inv) if disparity else s2,
-                       np.nan).astype(np.float32)
-        back = (np.float32(1.0) / v).astype(np.float32) if disparity else v
-        sd = np.sqrt(var) * back * back if disparity else np.sqrt(var)
-    return v, var, back, sd.astype(np.float32)

@@ -15,8 +15,8 @@ the gap between the depths at the two ends of its hole along the row: a hole ins
 surface has a small one, a hole at an edge the size of the step, and the filled pixel's
 standard deviation comes from it.
 
-:func:`fill_holes` is the kernel's wrapper, :func:`fill_reference` the plain definition the
-tests compare it with.
+:func:`fill_depth_holes` is the kernel's wrapper; the plain definition the tests compare it
+with is ``fill_reference`` in ``test/reference/depth_filter.py``.
 """
 
 from __future__ import annotations
@@ -30,8 +30,6 @@ from depth_nodes.errors import ArgumentError
 
 F32 = NDArray[np.float32]
 B = NDArray[np.bool_]
-#: Neighbours the around modes look at (dy, dx): the first three already filled.
-AROUND = ((0, -1), (-1, -1), (-1, 0), (1, -1), (1, 0))
 
 
 @numba.njit(cache=True, nogil=True, error_model='numpy')
@@ -68,7 +66,7 @@ def _mode(mode: str) -> int:
     return HOLE_FILLING.index(mode)
 
 
-def fill_holes(depth: F32, mode: str) -> tuple[F32, B]:
+def fill_depth_holes(depth: F32, mode: str) -> tuple[F32, B]:
     """Fill the missing pixels (NaN) of ``depth`` (Z metres) by ``mode``.
 
     Returns:
@@ -86,34 +84,6 @@ def fill_holes(depth: F32, mode: str) -> tuple[F32, B]:
         return z.copy(), filled
     out = np.empty_like(z)
     _fill_kernel(z, m, out, filled)
-    return out, filled
-
-
-def fill_reference(depth: F32, mode: str) -> tuple[F32, B]:
-    """Plain reference of :func:`fill_holes` (for the tests)."""
-    m = _mode(mode)
-    z = np.asarray(depth, np.float32)
-    out = z.copy()
-    filled = np.zeros(z.shape, bool)
-    if m == 0:
-        return out, filled
-    h, w = z.shape
-    for y in range(h):
-        for x in range(w):
-            if not np.isnan(z[y, x]):
-                continue
-            if m == 1:
-                candidates = [out[y, x - 1]] if x > 0 else []
-            else:
-                candidates = []
-                for k, (dy, dx) in enumerate(AROUND):
-                    yy, xx = y + dy, x + dx
-                    if 0 <= yy < h and 0 <= xx < w:
-                        candidates.append(out[yy, xx] if k < 3 else z[yy, xx])
-            known = [c for c in candidates if not np.isnan(c)]
-            if known:
-                out[y, x] = known[0] if m == 1 else (max(known) if m == 2 else min(known))
-                filled[y, x] = True
     return out, filled
 
 
@@ -146,21 +116,3 @@ def fill_spread(depth: F32, filled: B) -> F32:
     out = np.empty(z.shape, np.float32)
     _spread_kernel(z, np.ascontiguousarray(filled), out)
     return out
-
-
-def spread_reference(depth: F32, filled: B) -> F32:
-    """Plain numpy reference of :func:`fill_spread` (for the tests)."""
-    z = np.asarray(depth, np.float32)
-    w = z.shape[1]
-    spread = np.full(z.shape, np.nan, np.float32)
-    cols = np.arange(w)
-    for y in np.flatnonzero(filled.any(axis=1)):
-        row = z[y]
-        valid = np.isfinite(row)
-        if not valid.any():
-            continue
-        left_idx = np.maximum.accumulate(np.where(valid, cols, -1))
-        right_idx = np.minimum.accumulate(np.where(valid, cols, w)[::-1])[::-1]
-        ok = filled[y] & (left_idx >= 0) & (right_idx < w)
-        spread[y, ok] = np.abs(row[right_idx[ok]] - row[left_idx[ok]])
-    return spread

@@ -15,8 +15,8 @@ those pixels are marked in ``filled`` and are smoothed as valid ones afterwards.
 standard deviation's ratio, measured once per setting on a simulated flat patch), the
 factor a smoothed pixel's standard deviation is given.
 
-:func:`spatial_smooth` is the kernel's wrapper, :func:`spatial_reference` the plain
-definition the tests compare it with.
+:func:`spatial_smooth` is the kernel's wrapper; the plain definition the tests compare
+it with is ``spatial_reference`` in ``test/reference/depth_filter.py``.
 """
 
 from __future__ import annotations
@@ -123,46 +123,6 @@ def spatial_smooth(values: F32, alpha: float, delta: float, iterations: int,
     run = np.zeros(v.shape[0], np.int64)
     _smooth_kernel(v, vt, float(alpha), float(delta), int(iterations), int(holes), filled,
                    run)
-    return v, filled
-
-
-def spatial_reference(values: F32, alpha: float, delta: float, iterations: int,
-                      holes: int = 0) -> tuple[F32, B]:
-    """Plain reference of :func:`spatial_smooth` (for the tests): every pass written out
-    along its own direction, in float64 with float32 rounding after each update."""
-    v = _check(values, alpha, delta, iterations, holes)
-    h, w = v.shape
-    filled = np.zeros(v.shape, bool)
-
-    def update(cur: float, prev: float) -> float:
-        return float(np.float32(alpha * cur + (1.0 - alpha) * prev))
-
-    for it in range(iterations):
-        for reverse in (False, True):
-            for y in range(h):
-                prev, run = float('nan'), 0
-                for x in (range(w - 1, -1, -1) if reverse else range(w)):
-                    cur = float(v[y, x])
-                    if not np.isnan(cur):
-                        if abs(cur - prev) <= delta:
-                            cur = update(cur, prev)
-                            v[y, x] = cur
-                        prev, run = cur, 0
-                    elif it == 0 and not reverse and holes and not np.isnan(prev) \
-                            and run < holes:
-                        v[y, x], filled[y, x] = prev, True
-                        run += 1
-                    else:
-                        prev, run = float('nan'), run + 1
-        for reverse in (False, True):
-            for x in range(w):
-                prev = float(v[h - 1 if reverse else 0, x])
-                for y in (range(h - 2, -1, -1) if reverse else range(1, h)):
-                    cur = float(v[y, x])
-                    if not np.isnan(cur) and abs(cur - prev) <= delta:
-                        cur = update(cur, prev)
-                        v[y, x] = cur
-                    prev = cur
     return v, filled
 
 

@@ -14,8 +14,8 @@ camera's motion when it is known, :func:`warp_state`):
 The history is one byte per pixel, bit 0 the last frame. Values are in the filter's
 domain (1 / Z or Z).
 
-:func:`temporal_step` is the kernel's wrapper, :func:`temporal_reference` the plain
-definition the tests compare it with.
+:func:`temporal_step` is the kernel's wrapper; the plain definition the tests compare
+it with is ``temporal_reference`` in ``test/reference/depth_filter.py``.
 """
 
 from __future__ import annotations
@@ -126,26 +126,6 @@ def temporal_step(values: F32, var: F32, state: TemporalState, alpha: float, del
                      state.history, float(alpha), float(delta), need, mask, state.values,
                      state.var, kept)
     return state.values, state.var, kept
-
-
-def temporal_reference(values: F32, var: F32, state: TemporalState, alpha: float,
-                       delta: float, persistence: int) -> tuple[F32, F32, B]:
-    """Plain numpy reference of :func:`temporal_step` (for the tests)."""
-    v = np.asarray(values, np.float32)
-    need, mask = _persistence(persistence)
-    p, pv, bits = state.values, state.var, state.history.astype(np.int64)
-    valid = np.isfinite(v)
-    with np.errstate(invalid='ignore'):
-        close = valid & (np.abs(v - p) <= delta)
-    counts = np.array([bin(b & mask).count('1') for b in bits.ravel()]).reshape(v.shape)
-    kept = ~valid & np.isfinite(p) & ((need < 0) | ((need > 0) & (counts >= need)))
-    out = np.where(close, (alpha * v + (1 - alpha) * p).astype(np.float32), v)
-    out = np.where(kept, p, out).astype(np.float32)
-    out_var = np.where(close, alpha ** 2 * var + (1 - alpha) ** 2 * pv, var)
-    out_var = np.where(kept, pv, np.where(valid, out_var, np.nan)).astype(np.float32)
-    state.history = (((bits << 1) | valid) & 0xFF).astype(np.uint8)
-    state.values, state.var = out.copy(), out_var.copy()
-    return out, out_var, kept
 
 
 def fresh_state(camera: Intrinsics) -> TemporalState:

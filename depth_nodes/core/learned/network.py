@@ -1,5 +1,5 @@
 """The learned matching cost's feature network: its weights, its input normalisation and
-its forward pass with numpy (no training dependency).
+its forward pass on OpenCV's dnn module (no training dependency).
 
 The network maps a grey image to one unit vector of ``channels`` features per pixel:
 
@@ -12,8 +12,9 @@ The network maps a grey image to one unit vector of ``channels`` features per pi
   ``1 - cosine`` (``cost.py``).
 
 The training (``depth_nodes.tools.train``) evaluates the same network on patches with
-JAX; ``test/core/learned`` compares the two. :class:`FeatureNet` reads and writes the
-shipped ``.npz``: the weights and the recipe that made them.
+JAX; the tests compare both with the plain numpy forward pass (``features_reference`` in
+``test/reference/learned.py``). :class:`FeatureNet` reads and writes the shipped
+``.npz``: the weights and the recipe that made them.
 """
 
 from __future__ import annotations
@@ -166,21 +167,6 @@ def normalise(image: NDArray[Any], window: int) -> F32:
     return ((img - mean) / np.sqrt(variance)).astype(np.float32)
 
 
-def conv3x3_reference(x: F32, kernel: F32, bias: F32) -> F32:
-    """'Same' 3x3 convolution (correlation, as the deep-learning libraries define it) of an
-    (H, W, C_in) array with zero padding: (H, W, C_out) float32."""
-    h, w, c_in = x.shape
-    padded = np.zeros((h + 2, w + 2, c_in), np.float32)
-    padded[1:-1, 1:-1] = x
-    out = np.empty((h, w, kernel.shape[3]), np.float32)
-    out[:] = bias
-    for dy in range(3):
-        for dx in range(3):
-            tap = padded[dy:dy + h, dx:dx + w].reshape(h * w, c_in)
-            out.reshape(h * w, -1)[:] += tap @ kernel[dy, dx]
-    return out
-
-
 class FeatureExtractor:
     """The network's convolutions on OpenCV's dnn module (an ONNX model written by
     ``onnx.py``; OpenCV's thread pool), built once for a :class:`FeatureNet`.
@@ -213,16 +199,3 @@ class FeatureExtractor:
         x = self.raw(image).transpose(1, 2, 0)
         norm = np.sqrt((x * x).sum(axis=2, keepdims=True))
         return np.ascontiguousarray(x / np.maximum(norm, np.float32(NORM_FLOOR)))
-
-
-def features_reference(net: FeatureNet, image: NDArray[Any]) -> F32:
-    """Plain numpy version of :func:`features`."""
-    x = normalise(image, net.window)[:, :, None]
-    last = len(net.kernels) - 1
-    for i, (kernel, bias) in enumerate(zip(net.kernels, net.biases, strict=True)):
-        x = conv3x3_reference(x, kernel, bias)
-        if i < last:
-            np.maximum(x, 0.0, out=x)
-    norm = np.sqrt((x * x).sum(axis=2, keepdims=True))
-    unit: F32 = (x / np.maximum(norm, np.float32(NORM_FLOOR))).astype(np.float32)
-    return unit

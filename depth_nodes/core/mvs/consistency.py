@@ -5,7 +5,8 @@ depth found there is lifted back into the reference. The pixel agrees with that 
 the round trip lands within ``max_px`` pixels of where it started and the two depths
 differ by at most ``max_relative`` (COLMAP's geometric consistency, Schoenberger et al.
 2016). A view whose depth map has no value there, or that does not see the point, is not
-counted. :func:`consistency_reference` is the plain version the tests compare with.
+counted. The plain version the tests compare with is ``consistency_reference`` in
+``test/reference/mvs.py``.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ['consistency', 'consistency_reference']
+__all__ = ['consistency']
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -95,41 +96,4 @@ def consistency(depth: F32, k_ref: F64, others: list[tuple[F32, F64, tuple[F64, 
                             np.asarray(k_ref, np.float64), np.asarray(rotation, np.float64),
                             np.asarray(translation, np.float64), float(max_px),
                             float(max_relative), checked, agreed)
-    return checked, agreed
-
-
-def consistency_reference(depth: F32, k_ref: F64,
-                          others: list[tuple[F32, F64, tuple[F64, F64]]], *,
-                          max_px: float = 1.0, max_relative: float = 0.01
-                          ) -> tuple[U8, U8]:
-    """Plain numpy version of :func:`consistency`."""
-    h, w = depth.shape
-    checked = np.zeros((h, w), np.uint8)
-    agreed = np.zeros((h, w), np.uint8)
-    ys, xs = np.mgrid[0:h, 0:w]
-    pix = np.stack([xs, ys, np.ones_like(xs)], axis=-1).astype(np.float64)
-    k_inv = np.linalg.inv(k_ref)
-    z = depth.astype(np.float64)
-    ok = np.isfinite(z) & (z > 0)
-    points = (pix @ k_inv.T) * np.where(ok, z, 0.0)[..., None]
-    for other, k_other, (rotation, translation) in others:
-        oh, ow = other.shape
-        q = points @ np.asarray(rotation).T + np.asarray(translation)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            uv = (q @ np.asarray(k_other).T)[..., :2] / q[..., 2:3]
-        inside = ok & (q[..., 2] > 1e-9) & (uv[..., 0] >= -0.5) & (uv[..., 0] < ow - 0.5) & \
-            (uv[..., 1] >= -0.5) & (uv[..., 1] < oh - 0.5)
-        ui = np.where(inside, np.floor(uv[..., 0] + 0.5), 0).astype(int)
-        vi = np.where(inside, np.floor(uv[..., 1] + 0.5), 0).astype(int)
-        zo = other[vi, ui].astype(np.float64)
-        has = inside & np.isfinite(zo) & (zo > 0)
-        checked += has.astype(np.uint8)
-        back_pix = np.stack([ui, vi, np.ones_like(ui)], axis=-1).astype(np.float64)
-        o = (back_pix @ np.linalg.inv(k_other).T) * np.where(has, zo, 0.0)[..., None]
-        b = (o - np.asarray(translation)) @ np.asarray(rotation)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            ruv = (b @ np.asarray(k_ref).T)[..., :2] / b[..., 2:3]
-            near = ((ruv[..., 0] - xs) ** 2 + (ruv[..., 1] - ys) ** 2 <= max_px * max_px) & \
-                (np.abs(b[..., 2] - z) <= max_relative * z) & (b[..., 2] > 1e-9)
-        agreed += (has & near).astype(np.uint8)
     return checked, agreed

@@ -20,8 +20,8 @@ point, so a point hidden in some views is matched in the others. A label no view
 ``unseen_cost``. Layout as the stereo matcher's: the label innermost, uint8, so its
 aggregation and selection kernels run on this volume unchanged.
 
-:func:`~depth_nodes.core.mvs.cost_reference.sweep_cost_reference` is the plain numpy
-version the tests compare with.
+The plain numpy version the tests compare with is ``sweep_cost_reference`` in
+``test/reference/mvs.py``.
 """
 
 from __future__ import annotations
@@ -40,14 +40,18 @@ from depth_nodes.core.sgm.brightness import matched_brightness
 from depth_nodes.core.sgm.census import census_dtype, census_transform, popcount
 from depth_nodes.errors import ArgumentError
 
-__all__ = ['COSTS', 'MAX_SOURCES', 'SweepCostInputs', 'camera_matrix', 'reference_windows',
-           'sweep_cost_inputs', 'sweep_cost_volume']
+__all__ = ['COSTS', 'DEPRECATED_COSTS', 'MAX_SOURCES', 'SweepCostInputs', 'camera_matrix',
+           'reference_windows', 'sweep_cost_inputs', 'sweep_cost_volume']
 
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
-#: The matching costs: the stereo matcher's (census and intensity), or ZNCC.
-COSTS = ('census_intensity', 'zncc')
+#: The matching costs: the stereo matcher's (census and intensity, named as sgm_stereo's
+#: ``matching_cost`` names it), or ZNCC.
+COSTS = ('census', 'zncc')
+#: Old names of costs, accepted for one more release as the cost each maps to; a caller
+#: that has the name from a user (the multiview_stereo node) can tell them from this table.
+DEPRECATED_COSTS = {'census_intensity': 'census'}
 #: Most source views one sweep combines (the kernel's per-pixel scratch is sized by it).
 MAX_SOURCES = 16
 #: The largest cost of a seen label (255 is left for the stereo matcher's out-of-range).
@@ -137,7 +141,7 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
                       truncation: int = 30, best_k: int = 2, unseen_cost: int = 64,
                       match_brightness: bool = True,
                       source_census: list[NDArray[Any] | None] | None = None,
-                      cost: str = 'census_intensity') -> SweepCostInputs:
+                      cost: str = 'census') -> SweepCostInputs:
     """Prepare the sweep of ``reference`` over ``sources``.
 
     Args:
@@ -158,8 +162,9 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
             exposure change between frames).
         source_census: Census images of the sources already computed (a keyframe's is
             reused by every reference it serves), None where not.
-        cost: ``census_intensity`` (the stereo matcher's: census and truncated intensity
-            difference, by their weights) or ``zncc`` (a 3 x 3 window's ZNCC).
+        cost: ``census`` (the stereo matcher's: census and truncated intensity
+            difference, by their weights) or ``zncc`` (a 3 x 3 window's ZNCC); a name of
+            :data:`DEPRECATED_COSTS` stands for its cost.
 
     Raises:
         ArgumentError: Sizes or counts that do not fit, or settings out of range.
@@ -181,6 +186,7 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
     if not 0 <= unseen_cost <= TOP_COST:
         raise ArgumentError(f'unseen_cost must be in 0..{TOP_COST}, got {unseen_cost}')
     planes.validate()
+    cost = DEPRECATED_COSTS.get(cost, cost)
     if cost not in COSTS:
         raise ArgumentError(f'cost {cost!r} is not one of {", ".join(COSTS)}')
     dtype = census_dtype(census_window)

@@ -28,7 +28,8 @@ A pixel's estimate is *converged* when its relative depth standard deviation is 
 ``converge_sigma`` and it has at least ``min_inliers`` inlier measurements (for
 ``gauss_uniform``: an inlier probability a / (a + b) of at least ``min_inlier_ratio``).
 
-Every kernel has a plain reference (``*_reference``) that the tests compare with.
+Every kernel has a plain reference that the tests compare with, in ``test/reference/mvs.py``
+(``fuse_reference``, ``warp_state_reference``).
 """
 
 from __future__ import annotations
@@ -43,8 +44,7 @@ from numpy.typing import NDArray
 from depth_nodes.core.geometry import Intrinsics, Motion, splat
 from depth_nodes.errors import ArgumentError
 
-__all__ = ['FILTERS', 'FilterSettings', 'FilterState', 'converged', 'fuse', 'fuse_reference',
-           'warp_state']
+__all__ = ['FILTERS', 'FilterSettings', 'FilterState', 'converged', 'fuse', 'warp_state']
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -279,58 +279,6 @@ def fuse(state: FilterState, rho_m: F32, var_m: F32, settings: FilterSettings) -
                  np.ascontiguousarray(var_m, np.float32), _METHOD[settings.method],
                  float(settings.gate), float(settings.rho_range), float(settings.correlation))
     return state
-
-
-def fuse_reference(state: FilterState, rho_m: F32, var_m: F32,
-                   settings: FilterSettings) -> FilterState:
-    """Plain Python version of :func:`fuse` (returns a new state)."""
-    out = FilterState(state.rho.copy(), state.var.copy(), state.a.copy(), state.b.copy())
-    h, w = state.shape
-    for y in range(h):
-        for x in range(w):
-            m, vm = float(rho_m[y, x]), float(var_m[y, x])
-            if not (m > 0 and math.isfinite(m) and vm > 0 and math.isfinite(vm)):
-                continue
-            p = float(out.rho[y, x])
-            vp = float(out.var[y, x]) + settings.correlation * vm
-            if not (p > 0 and math.isfinite(p) and vp > 0):
-                prior = 1.0 if settings.method == 'kalman' else PRIOR_COUNT
-                out.rho[y, x], out.var[y, x] = m, vm
-                out.a[y, x], out.b[y, x] = prior, 0.0 if settings.method == 'kalman' else prior
-                continue
-            if settings.method == 'kalman':
-                if (m - p) ** 2 <= settings.gate ** 2 * (vp + vm):
-                    out.rho[y, x] = (p * vm + m * vp) / (vp + vm)
-                    out.var[y, x] = vp * vm / (vp + vm)
-                    out.a[y, x] += 1.0
-                    out.b[y, x] = 0.0
-                else:
-                    out.b[y, x] += 1.0
-                    if out.b[y, x] > out.a[y, x] or vm < vp:
-                        out.rho[y, x], out.var[y, x], out.a[y, x], out.b[y, x] = m, vm, 1, 0
-                continue
-            aa, bb = float(out.a[y, x]), float(out.b[y, x])
-            s2 = vp * vm / (vp + vm)
-            mean = s2 * (p / vp + m / vm)
-            c1 = aa / (aa + bb) * math.exp(-0.5 * (m - p) ** 2 / (vp + vm)) / math.sqrt(
-                2 * math.pi * (vp + vm))
-            c2 = bb / (aa + bb) / settings.rho_range
-            if not c1 + c2 > 0:
-                continue
-            c1, c2 = c1 / (c1 + c2), c2 / (c1 + c2)
-            f = c1 * (aa + 1) / (aa + bb + 1) + c2 * aa / (aa + bb + 1)
-            e = (c1 * (aa + 1) * (aa + 2) + c2 * aa * (aa + 1)) / ((aa + bb + 1) * (aa + bb + 2))
-            new_mean = c1 * mean + c2 * p
-            new_var = c1 * (s2 + mean * mean) + c2 * (vp + p * p) - new_mean * new_mean
-            denominator = f - e / f
-            if not (new_var > 0 and math.isfinite(new_mean) and denominator != 0):
-                continue
-            new_a = (e - f) / denominator
-            if not (new_a > 0 and math.isfinite(new_a)):
-                continue
-            out.rho[y, x], out.var[y, x] = new_mean, new_var
-            out.a[y, x], out.b[y, x] = new_a, new_a * (1 - f) / f
-    return out
 
 
 def converged(state: FilterState, settings: FilterSettings) -> NDArray[np.bool_]:

@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from depth_nodes.core.geometry import Intrinsics
 from depth_nodes.core.mvs.cost import (
     COSTS,
+    DEPRECATED_COSTS,
     MAX_SOURCES,
     TOP_COST,
     SweepCostInputs,
@@ -68,10 +69,11 @@ class MvsParams:
     best_views: int = setting(2, 'Source views averaged per plane, the best ones (Kang et '
                               'al. 2001: occlusion-robust); capped by the views that see '
                               'the point', low=1, high=MAX_SOURCES)
-    matching_cost: str = setting('census_intensity', 'census_intensity: the stereo '
-                                 "matcher's cost (census Hamming and truncated intensity "
-                                 'difference, by their weights); zncc: a 3 x 3 window\'s '
-                                 'ZNCC (slower)', choices=COSTS)
+    matching_cost: str = setting('census', "census: the stereo matcher's cost (census "
+                                 'Hamming and truncated intensity difference, by their '
+                                 "weights); zncc: a 3 x 3 window's ZNCC (slower); "
+                                 'census_intensity: the old name of census (deprecated)',
+                                 choices=(*COSTS, *DEPRECATED_COSTS))
     census_width: int = setting(5, 'census window width (odd)', low=3, high=9, odd=True)
     census_height: int = setting(5, 'census window height (odd; width x height - 1 <= 63)',
                                  low=3, high=9, odd=True)
@@ -125,6 +127,11 @@ class MvsParams:
                                      'unopposed)')
     memory_mb: float = setting(160.0, 'memory for the cost volumes, MB (bands above it)',
                                low=0.0, high=1e6)
+
+    def __post_init__(self) -> None:
+        # a deprecated name of a cost (DEPRECATED_COSTS) stands for the cost it maps to
+        if isinstance(self.matching_cost, str) and self.matching_cost in DEPRECATED_COSTS:
+            object.__setattr__(self, 'matching_cost', DEPRECATED_COSTS[self.matching_cost])
 
     def validate(self, width: int | None = None) -> MvsParams:
         """Check every field (and, with ``width``, that the planes fit it); returns self.
@@ -258,45 +265,6 @@ def _parallax_kernel(rho: F32, k_inv: F64, normal: F64, a_matrix: F64, b_vector:
             covered[y, x] = seeing
 
 
-def parallax_reference(rho: F32, inputs: SweepCostInputs
-                       ) -> tuple[F32, F32, NDArray[np.uint8]]:
-    """Plain numpy version of :func:`parallax`."""
-    h, w = rho.shape
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    rays = [inputs.k_inv[i, 0] * xs + inputs.k_inv[i, 1] * ys + inputs.k_inv[i, 2]
-            for i in range(3)]
-    s = sum(inputs.normal[i] * rays[i] for i in range(3))
-    lo, hi = float(inputs.rho[0]), float(inputs.rho[-1])
-    r = rho.astype(np.float64)
-    rate = np.zeros((h, w))
-    span = np.zeros((h, w))
-    covered = np.zeros((h, w), np.uint8)
-    with np.errstate(invalid='ignore', divide='ignore'):
-        for j in range(inputs.a_matrix.shape[0]):
-            m = inputs.a_matrix[j]
-            a = [m[i, 0] * xs + m[i, 1] * ys + m[i, 2] for i in range(3)]
-            b = [inputs.b_vector[j, i] * s for i in range(3)]
-            w_lo, w_hi = a[2] + lo * b[2], a[2] + hi * b[2]
-            ends = (w_lo > 1e-9) & (w_hi > 1e-9)
-            ends_uv = [((a[0] + q * b[0]) / wq, (a[1] + q * b[1]) / wq)
-                       for q, wq in ((lo, w_lo), (hi, w_hi))]
-            du = ends_uv[1][0] - ends_uv[0][0]
-            dv = ends_uv[1][1] - ends_uv[0][1]
-            span = np.maximum(span, np.where(ends, np.sqrt(du * du + dv * dv), 0.0))
-            inside = ends.copy()
-            for u_end, v_end in ends_uv:
-                inside &= (u_end >= 0) & (u_end <= w - 1) & (v_end >= 0) & (v_end <= h - 1)
-            covered += inside.astype(np.uint8)
-            wz = a[2] + r * b[2]
-            u, v = (a[0] + r * b[0]) / wz, (a[1] + r * b[1]) / wz
-            seen = (r > 0) & np.isfinite(r) & (wz > 1e-9) & (u >= 0) & (u <= w - 1) & \
-                (v >= 0) & (v <= h - 1)
-            du = (b[0] * a[2] - a[0] * b[2]) / (wz * wz)
-            dv = (b[1] * a[2] - a[1] * b[2]) / (wz * wz)
-            rate = np.maximum(rate, np.where(seen, np.sqrt(du * du + dv * dv), 0.0))
-    return rate.astype(np.float32), span.astype(np.float32), covered
-
-
 def parallax(rho: F32, inputs: SweepCostInputs) -> tuple[F32, F32, NDArray[np.uint8]]:
     """``(rate, span, covered)`` of :func:`_parallax_kernel` for a sweep's inputs."""
     h, w = rho.shape
@@ -378,4 +346,3 @@ class MultiViewMatcher:
             confidence = np.where(bad, 0.0, np.clip(1.0 - result.cost_ratio, 0, 1)).astype(
                 np.float32)
         return MvsResult(depth, rho, rho_var, sigma, confidence, label, inputs)
-

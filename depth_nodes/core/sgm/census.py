@@ -3,8 +3,8 @@
 A pixel's census signature holds one bit per neighbour of its window, set when the
 neighbour is darker than the centre: a gain or offset between the cameras does not change
 it. Two signatures are compared by the number of bits in which they differ
-(:func:`popcount` of their XOR). :func:`census_transform_reference` is the plain numpy
-version the tests compare the kernel with.
+(:func:`popcount` of their XOR). The plain numpy version the tests compare the kernel
+with is ``census_transform_reference`` in ``test/reference/sgm.py``.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from numpy.typing import NDArray
 from depth_nodes.core.jit import intrinsic
 from depth_nodes.errors import ArgumentError
 
-U64 = NDArray[np.uint64]
 #: A census image: uint32 or uint64 (:func:`census_dtype`).
 Census = NDArray[np.unsignedinteger[Any]]
 
@@ -90,22 +89,6 @@ def census_transform(image: NDArray[np.generic], window: tuple[int, int],
     ry, rx = window[0] // 2, window[1] // 2
     padded = np.pad(img, ((ry, ry), (rx, rx)), mode='edge')
     _census_kernel(padded, window[0], window[1], mirrored, out)
-    return out
-
-
-def census_transform_reference(image: NDArray[np.generic], window: tuple[int, int]) -> U64:
-    """Plain numpy census transform (same bit order as the kernel)."""
-    img = np.asarray(image, dtype=np.float32)
-    ry, rx = window[0] // 2, window[1] // 2
-    padded = np.pad(img, ((ry, ry), (rx, rx)), mode='edge')
-    h, w = img.shape
-    out = np.zeros(img.shape, np.uint64)
-    for dy in range(-ry, ry + 1):
-        for dx in range(-rx, rx + 1):
-            if dy == 0 and dx == 0:
-                continue
-            neighbour = padded[ry + dy:ry + dy + h, rx + dx:rx + dx + w]
-            out = (out << np.uint64(1)) | (neighbour < img).astype(np.uint64)
     return out
 
 

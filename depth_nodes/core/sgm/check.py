@@ -9,7 +9,8 @@ pass over the image. A left pixel ``x`` with disparity ``d`` is kept when
 * ``xr`` is outside the image (the disparity was extrapolated from the neighbours, see
   ``border.fill_outside``) by at most ``max_outside`` px.
 
-Everything else becomes NaN. Each kernel here has a plain numpy reference.
+Everything else becomes NaN. Each kernel here has a plain numpy reference
+(``check_disparity_reference`` in ``test/reference/sgm.py``).
 """
 
 from __future__ import annotations
@@ -56,25 +57,3 @@ def check_disparity(disparity: F32, disparity_right: F32, *, max_diff: float,
             disparity's right pixel.
     """
     _check_kernel(disparity, disparity_right, float(max_diff), float(max_outside))
-
-
-def check_disparity_reference(disparity: F32, disparity_right: F32, *, max_diff: float,
-                              max_outside: float) -> F32:
-    """Plain numpy version of :func:`check_disparity` (returns a new array)."""
-    h, w = disparity.shape
-    out = disparity.copy()
-    finite = np.isfinite(disparity)
-    xs = np.broadcast_to(np.arange(w), (h, w))
-    with np.errstate(invalid='ignore'):
-        xr = np.floor(xs - np.where(finite, disparity, 0) + 0.5).astype(np.int64)
-    outside = np.maximum(-xr, xr - (w - 1))
-    beyond = finite & (outside > 0)
-    out[beyond & (outside > max_outside)] = np.nan
-    inside = finite & ~beyond
-    if max_diff > 0:
-        ys, xi = np.nonzero(inside)
-        partner = disparity_right[ys, xr[ys, xi]]
-        with np.errstate(invalid='ignore'):
-            agree = np.abs(disparity[ys, xi] - partner) <= max_diff
-        out[ys[~agree], xi[~agree]] = np.nan
-    return out

@@ -8,8 +8,8 @@ matcher may give those cells a neutral cost instead: ``border.py``).
 
 The census is :mod:`~depth_nodes.core.sgm.census`'s; the intensity term may be taken on a
 brightness-matched right image (:mod:`~depth_nodes.core.sgm.brightness`). Every numba
-kernel here has a plain numpy reference (:func:`cost_volume_reference`) that the tests
-compare it with.
+kernel here has a plain numpy reference that the tests compare it with
+(``cost_volume_reference`` in ``test/reference/sgm.py``).
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ from depth_nodes.core.sgm.census import (
     Census,
     census_dtype,
     census_transform,
-    census_transform_reference,
     popcount,
 )
 
@@ -367,51 +366,3 @@ def cost_volume(left: NDArray[np.generic], right: NDArray[np.generic], *,
     if out is None:
         out = np.empty((h, w, disparity_range), np.uint8)
     return inputs.rows(0, out)
-
-
-def cost_volume_reference(left: NDArray[np.generic], right: NDArray[np.generic], *,
-                          min_disparity: int, disparity_range: int,
-                          census_window: tuple[int, int] = (9, 7), census_weight: int = 1,
-                          intensity_weight: int = 0, intensity_cost: str = 'bt',
-                          intensity_truncation: int = 30,
-                          match_brightness: bool = False) -> U8:
-    """Plain numpy version of :func:`cost_volume`."""
-    lf, rf = np.asarray(left, np.float32), np.asarray(right, np.float32)
-    h, w = lf.shape
-    cl = census_transform_reference(lf, census_window)
-    cr = census_transform_reference(rf, census_window)
-    if match_brightness:
-        rf = np.asarray(matched_brightness(left, right), np.float32)
-
-    def half_range(img: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        left_n = 0.5 * (img + np.concatenate([img[:, :1], img[:, :-1]], axis=1))
-        right_n = 0.5 * (img + np.concatenate([img[:, 1:], img[:, -1:]], axis=1))
-        stack = np.stack([img, left_n, right_n])
-        return stack.min(axis=0), stack.max(axis=0)
-
-    lo_l, hi_l = half_range(lf)
-    lo_r, hi_r = half_range(rf)
-    out = np.full((h, w, disparity_range), OUT_OF_RANGE_COST, np.uint8)
-    xs = np.arange(w)
-    for k in range(disparity_range):
-        xr = xs - (min_disparity + k)
-        ok = (xr >= 0) & (xr < w)
-        xl, xrr = xs[ok], xr[ok]
-        cost = np.zeros((h, ok.sum()), np.int64)
-        if census_weight:
-            x = cl[:, xl] ^ cr[:, xrr]
-            x = np.ascontiguousarray(x)
-            bits = np.unpackbits(x.view(np.uint8).reshape(h, -1, 8), axis=2).sum(axis=2)
-            cost += census_weight * bits.astype(np.int64)
-        if intensity_weight:
-            il, ir = lf[:, xl], rf[:, xrr]
-            if intensity_cost == 'bt':
-                d_left = np.maximum(0, np.maximum(il - hi_r[:, xrr], lo_r[:, xrr] - il))
-                d_right = np.maximum(0, np.maximum(ir - hi_l[:, xl], lo_l[:, xl] - ir))
-                diff = np.minimum(d_left, d_right)
-            else:
-                diff = np.abs(il - ir)
-            cost += intensity_weight * (np.minimum(diff, intensity_truncation) + 0.5).astype(
-                np.int64)
-        out[:, xl, k] = np.minimum(cost, OUT_OF_RANGE_COST - 1)
-    return out

@@ -158,15 +158,6 @@ def unit_quantised(raw: NDArray[np.float32]) -> I16:
     return out
 
 
-def unit_quantised_reference(raw: NDArray[np.float32]) -> I16:
-    """Plain numpy version of :func:`unit_quantised`."""
-    x = np.asarray(raw, np.float32).transpose(1, 2, 0)
-    norm = np.sqrt((x * x).sum(axis=2, keepdims=True, dtype=np.float32))
-    scale = np.float32(QUANT) / np.maximum(norm, np.float32(NORM_FLOOR))
-    out: I16 = np.clip(np.rint(x * scale), -QUANT, QUANT).astype(np.int16)
-    return out
-
-
 def learned_costs_from(left: I16, right: I16, *, min_disparity: int, weight: int,
                        census: CostInputs | None = None) -> LearnedCosts:
     """:class:`LearnedCosts` of quantised unit features (:func:`unit_quantised`) given
@@ -174,21 +165,3 @@ def learned_costs_from(left: I16, right: I16, *, min_disparity: int, weight: int
     frm = np.ascontiguousarray(right[:, ::-1].transpose(0, 2, 1))
     return LearnedCosts(np.ascontiguousarray(left), frm, int(min_disparity), int(weight),
                         census)
-
-
-def learned_cost_reference(left: I16, right: I16, *, min_disparity: int,
-                           disparity_range: int, weight: int) -> U8:
-    """Plain numpy version of the learned-only volume (H, W, D) of quantised (H, W, C)
-    features."""
-    fl, fr = left.astype(np.int64), right.astype(np.int64)
-    h, w = fl.shape[:2]
-    out = np.full((h, w, disparity_range), OUT_OF_RANGE_COST, np.uint8)
-    q2 = QUANT * QUANT
-    xs = np.arange(w)
-    for k in range(disparity_range):
-        xr = xs - (min_disparity + k)
-        ok = (xr >= 0) & (xr < w)
-        dot = (fl[:, xs[ok]] * fr[:, xr[ok]]).sum(axis=2)
-        value = (weight * np.maximum(0, q2 - dot) + q2 // 2) // q2
-        out[:, xs[ok], k] = np.minimum(value, 254)
-    return out

@@ -18,7 +18,8 @@ the full matcher's step (``aggregate.path_step``) runs unchanged on a slice of t
 With every window the full range the result is the full matcher's, bit for bit (tested).
 
 Every kernel here has a plain reference in the tests' terms: the full matcher's plain
-references on a volume whose cells outside the windows cost "infinity".
+references on a volume whose cells outside the windows cost "infinity"
+(``test/reference/sgm.py``, with ``window_mask``).
 """
 
 from __future__ import annotations
@@ -342,24 +343,3 @@ def ranged_select(cost: U8, base: I64, lo: I32, wid: I32, image: F32, partial: U
                                                  float(right_key >> np.uint32(16)),
                                                  float(total[xl + 1, ib]))
                 disparity_right[y, xr] = min_disparity + kbest + offset
-
-
-# ---------------------------------------------------------------------- references
-def window_mask(lo: I32, wid: I32, disparity_range: int) -> NDArray[np.bool_]:
-    """(H, W, D) bool: which cells each pixel's window holds (for the references)."""
-    ks = np.arange(disparity_range)
-    return (ks >= lo[..., None]) & (ks < (lo + wid)[..., None])
-
-
-def to_flat(volume: NDArray[Any], lo: I32, wid: I32) -> NDArray[Any]:
-    """The windows' cells of an (H, W, D) volume, in the flat layout."""
-    return volume[window_mask(lo, wid, volume.shape[2])]
-
-
-def from_flat(flat: NDArray[Any], lo: I32, wid: I32, disparity_range: int,
-              fill: int) -> NDArray[np.int64]:
-    """An (H, W, D) int64 volume with the flat cells in their windows, ``fill`` elsewhere."""
-    mask = window_mask(lo, wid, disparity_range)
-    out = np.full(mask.shape, fill, np.int64)
-    out[mask] = flat
-    return out

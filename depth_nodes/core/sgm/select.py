@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit, prange, types
 from numpy.typing import NDArray
 
-from depth_nodes.core.jit import intrinsic, no_nrt_kernel, python_function
+from depth_nodes.core.jit import intrinsic, no_nrt_kernel
 from depth_nodes.core.sgm.aggregate import path_start, path_step, ring_slot, store_path, table_p2
 
 U8 = NDArray[np.uint8]
@@ -367,64 +367,3 @@ def band_select(cost: U8, image: F32, partial: U16, y0: int, rows: int,
                                              float(cost_m[w - 1 - xr]),
                                              float(total[xl + 1, kbest + 1]))
                 disparity_right[y, xr] = min_disparity + kbest + offset
-
-
-# --------------------------------------------------------------------- references
-def select_reference(total: NDArray[np.integer], *, min_disparity: int, uniqueness: float,
-                     subpixel: str, extrapolate: bool = False,
-                     window: NDArray[np.bool_] | None = None) -> tuple[F32, F32, F32]:
-    """Plain numpy selection from a full (H, W, D) total: (left, right, ratio). With an
-    (H, W, D) ``window`` mask (the coarse search's, ``ranged.window_mask``) only its cells
-    are candidates, of both views."""
-    h, w, n = total.shape
-    tot = total.astype(np.float64)
-    if window is not None:
-        tot = np.where(window, tot, np.inf)
-    ks = np.arange(n)
-    xs = np.arange(w)
-    xr_of = xs[:, None] - (min_disparity + ks)[None, :]  # (W, D) right pixel of (x, k)
-    inside = (xr_of >= 0) & (xr_of < w)
-    valid = np.ones_like(inside) if extrapolate else inside
-    valid = np.broadcast_to(valid[None], (h, w, n))
-    if window is not None:
-        valid = valid & window
-    masked = np.where(valid, tot, np.inf)
-    kbest = np.argmin(masked, axis=2)
-    best = np.take_along_axis(masked, kbest[..., None], axis=2)[..., 0]
-    near = np.abs(ks[None, None, :] - kbest[..., None]) <= 1
-    second = np.where(near, np.inf, masked).min(axis=2)
-    has_second = np.isfinite(second)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.where(has_second & (second > 0), best / np.where(second > 0, second, 1), 1.0)
-    unique = ~has_second | (second * (100 - uniqueness) >= best * 100)
-    mode = SUBPIXEL_MODES[subpixel]
-    plain_offset = python_function(subpixel_offset)
-    offset = np.zeros((h, w))
-    for y in range(h):
-        for x in range(w):
-            k = kbest[y, x]
-            if 0 < k < n - 1 and valid[y, x, k - 1] and valid[y, x, k + 1]:
-                offset[y, x] = plain_offset(mode, tot[y, x, k - 1], tot[y, x, k],
-                                            tot[y, x, k + 1])
-    any_valid = valid.any(axis=2)
-    left = np.where(unique & any_valid, min_disparity + kbest + offset, np.nan)
-    ratio = np.where(any_valid, ratio, 1.0)
-    right = np.full((h, w), np.nan)
-    for xr in range(w):
-        xl = xr + min_disparity + ks
-        ok = (xl >= 0) & (xl < w)
-        if not ok.any():
-            continue
-        diag = np.full((h, n), np.inf)
-        diag[:, ok] = tot[:, xl[ok], ks[ok]]
-        kb = np.argmin(diag, axis=1)
-        for y in range(h):
-            k = kb[y]
-            if not np.isfinite(diag[y, k]):  # no window holds this right pixel
-                continue
-            off = 0.0
-            if 0 < k < n - 1 and ok[k - 1] and ok[k + 1] and np.isfinite(diag[y, k - 1]) \
-                    and np.isfinite(diag[y, k + 1]):
-                off = plain_offset(mode, diag[y, k - 1], diag[y, k], diag[y, k + 1])
-            right[y, xr] = min_disparity + k + off
-    return left.astype(np.float32), right.astype(np.float32), ratio.astype(np.float32)

@@ -17,7 +17,6 @@ from depth_nodes.core.structured_light.patterns import (
 from depth_nodes.core.structured_light.speckle import (
     SpeckleMatcher,
     match_speckle,
-    match_speckle_reference,
     shift_range,
     shift_to_depth,
     speckle_depth,
@@ -47,7 +46,6 @@ __all__ = [
     'gray_code',
     'gray_to_binary',
     'match_speckle',
-    'match_speckle_reference',
     'pixel_rays',
     'points_on_rays',
     'shift_range',

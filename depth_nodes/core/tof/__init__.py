@@ -49,7 +49,6 @@ from depth_nodes.core.tof.decoder import (
 from depth_nodes.core.tof.flying import (
     BETWEEN_SIGMAS,
     NOISE_SIGMAS,
-    flying_reference,
     remove_flying_pixels,
 )
 from depth_nodes.core.tof.params import (
@@ -58,9 +57,9 @@ from depth_nodes.core.tof.params import (
     check_frequencies,
     unambiguous_range,
 )
-from depth_nodes.core.tof.phase import phase_of, phasors, phasors_reference, unwrap
+from depth_nodes.core.tof.phase import phase_of, phasors, unwrap
 
 __all__ = ['BETWEEN_SIGMAS', 'FLYING', 'LOW_AMPLITUDE', 'NOISE_SIGMAS', 'OUT_OF_RANGE',
            'SATURATED', 'SPEED_OF_LIGHT', 'ToFDecoder', 'ToFParams', 'ToFResult',
-           'check_frequencies', 'decode_tof', 'flying_reference', 'phase_of', 'phasors',
-           'phasors_reference', 'remove_flying_pixels', 'unambiguous_range', 'unwrap']
+           'check_frequencies', 'decode_tof', 'phase_of', 'phasors', 'remove_flying_pixels',
+           'unambiguous_range', 'unwrap']

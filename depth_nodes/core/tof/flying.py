@@ -1,6 +1,7 @@
 """Flying pixels: a pixel that sees two surfaces at a depth edge measures a mixture of
-both, a range in between that belongs to neither (:func:`remove_flying_pixels`).
-:func:`flying_reference` is the plain numpy definition the tests compare the kernel with.
+both, a range in between that belongs to neither (:func:`remove_flying_pixels`). The
+plain numpy definition the tests compare the kernel with is ``flying_reference`` in
+``test/reference/tof.py``.
 """
 
 from __future__ import annotations
@@ -20,8 +21,6 @@ NOISE_SIGMAS = 3.0
 BETWEEN_SIGMAS = 2.5
 #: ``spikes``: the smallest share of a pixel's smaller step its neighbours must differ by.
 SLIT_SHARE = 0.25
-#: The four directions the flying-pixel test looks along: (dy, dx).
-_DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
@@ -149,40 +148,3 @@ def remove_flying_pixels(range_m: F32, absolute: float, jump: float = 0.0,
         _flying_kernel(padded, noise, float(absolute), float(jump), float(margin),
                        bool(spikes), out)
     return out
-
-
-def flying_reference(range_m: F32, absolute: float, jump: float = 0.0,
-                     sigma: F32 | None = None, margin: float = 0.0,
-                     spikes: bool = False) -> NDArray[np.bool_]:
-    """Plain numpy reference of :func:`remove_flying_pixels` (for the tests)."""
-    r = np.asarray(range_m, np.float64)
-    h, w = r.shape
-    noise = np.zeros((h, w)) if sigma is None else np.nan_to_num(
-        np.asarray(sigma, np.float64), nan=0.0, posinf=0.0)
-    pad = np.pad(r, PAD, constant_values=np.nan)
-    pad_s = np.pad(noise, PAD)
-
-    def at(dy: int, dx: int, image: NDArray[np.float64] = pad) -> NDArray[np.float64]:
-        return image[PAD + dy:PAD + dy + h, PAD + dx:PAD + dx + w]
-
-    out = np.zeros((h, w), bool)
-    with np.errstate(invalid='ignore'):
-        if jump > 0:
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    out |= np.abs(r - at(dy, dx)) > jump * r + NOISE_SIGMAS * np.sqrt(
-                        noise ** 2 + at(dy, dx, pad_s) ** 2)
-        for dy, dx in _DIRECTIONS if absolute > 0 else ():
-            a, b = at(-dy, -dx), at(dy, dx)
-            beyond = np.abs(a - at(-2 * dy, -2 * dx)) + np.abs(b - at(2 * dy, 2 * dx))
-            unexplained = np.abs(a - b) - beyond
-            sa, sb = at(-dy, -dx, pad_s), at(dy, dx, pad_s)
-            clear = np.minimum(np.abs(r - a), np.abs(r - b)) > margin * np.abs(a - b)
-            noise = absolute + BETWEEN_SIGMAS * np.sqrt(sa ** 2 + sb ** 2)
-            out |= ((r - a) * (r - b) < 0) & clear & (unexplained > noise)
-            if spikes:
-                gap = np.abs(a - b)
-                out |= ((r > np.maximum(a, b) + noise) | (r < np.minimum(a, b) - noise)) & \
-                    (gap > noise) & (gap > SLIT_SHARE * np.minimum(np.abs(r - a),
-                                                                   np.abs(r - b)))
-    return out & np.isfinite(r)

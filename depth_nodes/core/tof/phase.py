@@ -4,7 +4,8 @@ of all the frequencies unwrapped into one range per pixel.
 Unwrapping tries every wrap count of the lowest frequency within the unambiguous range
 and keeps the one on which all frequencies agree best, weighted by their expected noise
 (the usual lookup of multi-frequency cameras). Each kernel has a plain reference or an
-exact test (:func:`phasors_reference`; unwrapping on exact phases).
+exact test (``phasors_reference`` in ``test/reference/tof.py``; unwrapping on exact
+phases).
 """
 
 from __future__ import annotations
@@ -106,19 +107,6 @@ def phasors(samples: NDArray[Any], n_freq: int, steps: int, saturation: float
     saturated = np.empty(arr.shape[1:], np.bool_)
     _phasor_kernel(arr, n_freq, steps, float(saturation), phase, amplitude, offset, saturated)
     return phase, amplitude, offset, saturated
-
-
-def phasors_reference(samples: NDArray[Any], n_freq: int, steps: int, saturation: float
-                      ) -> tuple[F32, F32, F32, NDArray[np.bool_]]:
-    """Plain numpy reference of :func:`phasors` (for the tests)."""
-    arr = np.asarray(samples, np.float64).reshape(n_freq, steps, *samples.shape[1:])
-    theta = 2 * np.pi * np.arange(steps) / steps
-    re = np.tensordot(np.cos(theta), arr, axes=([0], [1]))
-    im = np.tensordot(np.sin(theta), arr, axes=([0], [1]))
-    phase = np.mod(np.arctan2(im, re), 2 * np.pi)
-    saturated: NDArray[np.bool_] = np.asarray((arr >= saturation).any(axis=(0, 1)))
-    return (phase.astype(np.float32), (2 / steps * np.hypot(re, im)).astype(np.float32),
-            arr.mean(axis=1).astype(np.float32), saturated)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
