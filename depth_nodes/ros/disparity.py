@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from sensor_msgs.msg import RegionOfInterest
 from stereo_msgs.msg import DisparityImage
 
+from depth_nodes.core.stamps import stamp_ns
 from depth_nodes.errors import EncodingError, MessageError
 from depth_nodes.ros.image import array_to_image, image_to_array
 
@@ -190,6 +191,6 @@ def read_disparity(msg: Any) -> DisparityFrame:
         max_disparity=float(msg.max_disparity),
         delta_d=float(msg.delta_d),
         valid_window=window,
-        stamp_ns=int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec),
+        stamp_ns=stamp_ns(stamp),
         frame_id=str(msg.header.frame_id),
     )

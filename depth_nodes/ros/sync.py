@@ -39,6 +39,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from depth_nodes.core.stamps import NS_PER_S, stamp_ns
 from depth_nodes.errors import SyncError
 
 __all__ = [
@@ -47,8 +48,6 @@ __all__ = [
     'ExactTimeSynchronizer',
     'stamp_to_ns',
 ]
-
-NS_PER_S = 1_000_000_000
 
 #: Every key that can appear in a synchroniser's ``dropped`` counter.
 DROP_REASONS = ('queue_full', 'unmatched', 'out_of_order', 'duplicate', 'interval_too_large')
@@ -82,7 +81,7 @@ def stamp_to_ns(stamp: Any) -> int:
         raise SyncError(f'stamp sec/nanosec must be integers, got {sec!r}/{nanosec!r}')
     if not 0 <= nanosec_i < NS_PER_S:
         raise SyncError(f'stamp nanosec must be in [0, 1e9), got {nanosec!r}')
-    return sec_i * NS_PER_S + nanosec_i
+    return stamp_ns(stamp)
 
 
 def _msg_stamp_ns(msg: Any) -> int:

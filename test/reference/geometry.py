@@ -62,7 +62,7 @@ def splat_reference(values: NDArray[Any], source: Intrinsics, target: Intrinsics
         near_u = np.floor(0.5 * (u_lo + u_hi) + 0.5)
         near_v = np.floor(0.5 * (v_lo + v_hi) + 0.5)
     depth = np.full((target.height, target.width), np.inf)
-    index = np.full((target.height, target.width), -1, np.int64)
+    index = np.full((target.height, target.width), -1, np.int32)
     flat_zc = np.where(ok, zc, np.inf).ravel()
     for r in range(target.height):
         for c in range(target.width):

@@ -34,7 +34,7 @@ F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
 B = NDArray[np.bool_]
 F64 = NDArray[np.float64]
-I64 = NDArray[np.int64]
+I32 = NDArray[np.int32]
 
 
 @dataclass
@@ -137,11 +137,11 @@ def fresh_state(camera: Intrinsics) -> TemporalState:
 
 @numba.njit(cache=True, nogil=True, error_model='numpy')
 def _carry_kernel(values: F32, var: F32, history: U8, disparity: bool, zbuf: F64,
-                  index: I64, out: F32, out_var: F32, out_history: U8) -> None:
+                  index: I32, out: F32, out_var: F32, out_history: U8) -> None:
     """Each landed pixel's value: the new Z (or 1 / Z), the variance scaled by the change
-    of depth (in disparity), the history as it was."""
+    of depth (in disparity), the history as it was. The source arrays are flat (their
+    index is the splat's), the others (H, W)."""
     oh, ow = zbuf.shape
-    w = values.shape[1]
     for r in range(oh):
         for c in range(ow):
             k = index[r, c]
@@ -150,16 +150,15 @@ def _carry_kernel(values: F32, var: F32, history: U8, disparity: bool, zbuf: F64
                 out_var[r, c] = np.nan
                 out_history[r, c] = 0
                 continue
-            y, x = k // w, k % w
-            value = np.float64(values[y, x])
+            value = np.float64(values[k])
             z = 1.0 / value if disparity else value
             zc = zbuf[r, c]
             inv = 1.0 / zc
             out[r, c] = np.float32(inv if disparity else zc)
             ratio = z * inv
             r2 = ratio * ratio
-            out_var[r, c] = np.float32(var[y, x] * r2 * r2 if disparity else var[y, x])
-            out_history[r, c] = history[y, x]
+            out_var[r, c] = np.float32(var[k] * r2 * r2 if disparity else var[k])
+            out_history[r, c] = history[k]
 
 
 def warp_state(state: TemporalState, camera: Intrinsics, motion: Motion, disparity: bool,
@@ -184,6 +183,6 @@ def warp_state(state: TemporalState, camera: Intrinsics, motion: Motion, dispari
     out.camera = camera
     moved = splat(state.values, state.camera, camera, motion, footprint='box',
                   inverse=disparity, into=landed)
-    _carry_kernel(state.values, state.var, state.history, disparity, moved.depth,
-                  moved.index, out.values, out.var, out.history)
+    _carry_kernel(state.values.reshape(-1), state.var.reshape(-1), state.history.reshape(-1),
+                  disparity, moved.depth, moved.index, out.values, out.var, out.history)
     return out

@@ -40,7 +40,7 @@ __all__ = ['FOOTPRINTS', 'Splat', 'splat']
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
-I64 = NDArray[np.int64]
+I32 = NDArray[np.int32]
 
 #: How much of the target a source pixel covers (see the module notes).
 FOOTPRINTS = ('point', 'box', 'corners')
@@ -53,17 +53,17 @@ class Splat:
 
     Attributes:
         depth: (H, W) float64 Z in the target's optical frame, ``inf`` where nothing landed.
-        index: (H, W) int64 flat index (``y * width + x``) of the source pixel that landed
+        index: (H, W) int32 flat index (``y * width + x``) of the source pixel that landed
             there, -1 where none did.
     """
 
     depth: F64
-    index: I64
+    index: I32
 
     @classmethod
     def empty(cls, shape: tuple[int, int]) -> Splat:
         """Buffers for a target of ``shape`` (H, W), to pass as ``into``."""
-        return cls(np.empty(shape), np.empty(shape, np.int64))
+        return cls(np.empty(shape), np.empty(shape, np.int32))
 
     @property
     def landed(self) -> NDArray[np.bool_]:
@@ -96,6 +96,8 @@ def splat(values: NDArray[np.floating], source: Intrinsics, target: Intrinsics,
     if arr.shape != (source.height, source.width):
         raise ArgumentError(f'the source is {arr.shape[1::-1]} but its camera '
                             f'{source.width}x{source.height}')
+    if arr.size >= 2**31:
+        raise ArgumentError(f'a source of {arr.size} pixels is more than a splat indexes')
     if footprint not in _FOOTPRINT:
         raise ArgumentError(f'footprint {footprint!r}: one of {", ".join(FOOTPRINTS)}')
     R = np.ascontiguousarray(check_rotation(motion[0], 'a motion\'s rotation'))
@@ -117,7 +119,7 @@ def splat(values: NDArray[np.floating], source: Intrinsics, target: Intrinsics,
 
 @numba.njit(cache=True, nogil=True, error_model='numpy')
 def _splat_kernel(values: NDArray[np.floating], inverse: bool, src: F64, dst: F64, R: F64,
-                  t: F64, footprint: int, zbuf: F64, index: I64) -> None:
+                  t: F64, footprint: int, zbuf: F64, index: I32) -> None:
     h, w = values.shape
     oh, ow = zbuf.shape
     h_end, w_end = float(oh), float(ow)

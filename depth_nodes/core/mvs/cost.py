@@ -40,7 +40,7 @@ from depth_nodes.core.sgm.brightness import matched_brightness
 from depth_nodes.core.sgm.census import census_dtype, census_transform, popcount
 from depth_nodes.errors import ArgumentError
 
-__all__ = ['COSTS', 'DEPRECATED_COSTS', 'MAX_SOURCES', 'SweepCostInputs', 'camera_matrix',
+__all__ = ['COSTS', 'DEPRECATED_COSTS', 'MAX_SOURCES', 'SweepCostInputs',
            'reference_windows', 'sweep_cost_inputs', 'sweep_cost_volume']
 
 U8 = NDArray[np.uint8]
@@ -58,12 +58,6 @@ MAX_SOURCES = 16
 TOP_COST = 254
 #: A homogeneous depth below this (in the source camera) counts as behind it.
 MIN_W = 1e-9
-
-
-def camera_matrix(camera: Intrinsics) -> F64:
-    """The (3, 3) pinhole matrix K of ``camera``."""
-    return np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy],
-                     [0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
@@ -202,12 +196,12 @@ def sweep_cost_inputs(reference: NDArray[Any], camera: Intrinsics, sources: list
     src_grey = np.empty((len(sources), *ref.shape), np.float32)
     for j, image in enumerate(sources):
         src_grey[j] = matched_brightness(ref, image) if match_brightness else image
-    k_inv = np.asarray(np.linalg.inv(camera_matrix(camera)), np.float64)
+    k_inv = np.asarray(np.linalg.inv(camera.matrix), np.float64)
     a_matrix = np.empty((len(sources), 3, 3))
     b_vector = np.empty((len(sources), 3))
     for j, ((rotation, translation), cam) in enumerate(zip(relative, source_cameras,
                                                            strict=True)):
-        k_src = camera_matrix(cam)
+        k_src = cam.matrix
         a_matrix[j] = k_src @ np.asarray(rotation, np.float64) @ k_inv
         b_vector[j] = k_src @ np.asarray(translation, np.float64)
     h, w = ref.shape

@@ -48,7 +48,7 @@ __all__ = ['FILTERS', 'FilterSettings', 'FilterState', 'converged', 'fuse', 'war
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
-I64 = NDArray[np.int64]
+I32 = NDArray[np.int32]
 FILTERS = ('kalman', 'gauss_uniform')
 _METHOD = {'kalman': 0, 'gauss_uniform': 1}
 #: Beta counts of a new pixel of the ``gauss_uniform`` filter (SVO's start).
@@ -147,12 +147,12 @@ class FilterState:
 
 # ------------------------------------------------------------------------- moving the state
 @njit(cache=True, nogil=True)
-def _carry_kernel(rho: F32, var: F32, a: F32, b: F32, zbuf: F64, index: I64, t_z: float,
+def _carry_kernel(rho: F32, var: F32, a: F32, b: F32, zbuf: F64, index: I32, t_z: float,
                   process: float, out_rho: F32, out_var: F32, out_a: F32, out_b: F32) -> None:
     """Each landed pixel's estimate: the new inverse depth, the variance carried to first
-    order plus process noise, the counts as they were."""
+    order plus process noise, the counts as they were. The source arrays are flat (their
+    index is the splat's), the others (H, W)."""
     oh, ow = zbuf.shape
-    w = rho.shape[1]
     for y in range(oh):
         for x in range(ow):
             k = index[y, x]
@@ -162,17 +162,16 @@ def _carry_kernel(rho: F32, var: F32, a: F32, b: F32, zbuf: F64, index: I64, t_z
                 out_a[y, x] = 0.0
                 out_b[y, x] = 0.0
                 continue
-            sy, sx = k // w, k % w
-            r = np.float64(rho[sy, sx])
+            r = np.float64(rho[k])
             z_new = zbuf[y, x]
             new_rho = 1.0 / z_new
             # rho_new = rho / (q_z + t_z rho), q_z the old ray's z in the new frame:
             # d rho_new / d rho = q_z / (q_z + t_z rho)^2 = (Z_new - t_z) / (Z_new^2 rho)
             gain = (z_new - t_z) / (z_new * z_new * r)
             out_rho[y, x] = new_rho
-            out_var[y, x] = var[sy, sx] * gain * gain + (process * new_rho) ** 2
-            out_a[y, x] = a[sy, sx]
-            out_b[y, x] = b[sy, sx]
+            out_var[y, x] = var[k] * gain * gain + (process * new_rho) ** 2
+            out_a[y, x] = a[k]
+            out_b[y, x] = b[k]
 
 
 def warp_state(state: FilterState, old: Intrinsics, new: Intrinsics, motion: Motion, *,
@@ -190,7 +189,8 @@ def warp_state(state: FilterState, old: Intrinsics, new: Intrinsics, motion: Mot
     """
     out = FilterState.empty(new.shape)
     landed = splat(state.rho, old, new, motion, footprint='point', inverse=True)
-    _carry_kernel(state.rho, state.var, state.a, state.b, landed.depth, landed.index,
+    _carry_kernel(state.rho.reshape(-1), state.var.reshape(-1), state.a.reshape(-1),
+                  state.b.reshape(-1), landed.depth, landed.index,
                   float(np.asarray(motion[1], np.float64).reshape(-1)[2]),
                   float(process_sigma), out.rho, out.var, out.a, out.b)
     return out
