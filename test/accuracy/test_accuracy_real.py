@@ -3,7 +3,7 @@ ground truth from structured light) through the shipped stereo graph with a 64-d
 window, scored by `depth-nodes eval` beside OpenCV's StereoSGBM (stereo_image_proc's
 defaults and an 18-setting grid) on the same rectified images.
 
-The assertions are the issue's targets:
+The assertions are the targets:
 * the raw `disparity`: dense bad-2 at most 0.6x OpenCV's best grid setting, and sparse
   bad-2 below every OpenCV setting's at an equal or higher density;
 * the dense `disparity_checked`: bad-2 at most 0.5x OpenCV's best dense, and bad-1 over
@@ -53,7 +53,7 @@ def test_dense_output_beats_published_sgm(real: dict[str, tuple[Path, EvalReport
 @pytest.mark.parametrize('pair', sorted(NONOCC_BAD1))
 def test_confidence_ranks_the_errors(real_reports: dict[str, tuple[Path, EvalReport]],
                                      pair: str) -> None:
-    """The issue's target, AUC at most 2x the optimum over the raw matcher's pixels, is not
+    """The target, AUC at most 2x the optimum over the raw matcher's pixels, is not
     met (README, "Confidence"): the raw output is already checked, and at its 3 % error
     rate the optimum is 0.05 % of the pixels. What holds is asserted."""
     assert_confidence_ranks_errors(real_reports[pair][1], own_limit=5.0)

@@ -3,7 +3,7 @@
 the real Middlebury temple views scored by their agreement with each other, and pose
 noise through the core.
 
-The bundled bags are 320x240 (64 planes): the issue's targets (median |dZ|/Z <= 1 %, 90 %
+The bundled bags are 320x240 (64 planes): the targets (median |dZ|/Z <= 1 %, 90 %
 within 2 %) are met at 640x480 in part only, and not at 320x240, where a plane step is
 1 - 2 % of the depth (docs/multiview.md#accuracy has the measurements). The thresholds
 below are the measured figures with a margin, so that a change that loses accuracy fails:

@@ -3,7 +3,7 @@
 growing with Z, mixed pixels at edges, holes that come and go, a moving camera, moving
 objects), scored by depth_nodes.tools.evaluation.depth_filter, frames 3 on.
 
-Targets and tolerances (issue 34; measured at 320x240 with 2 x 2 rays a pixel, the
+Targets and tolerances (measured at 320x240 with 2 x 2 rays a pixel, the
 margins to them in the asserts):
 temporal noise on flat surfaces >= 3x lower on a still scene, median error on flat surfaces
 within 0.1 % of the input's; with the camera's motion the error on depth edges no worse

@@ -5,7 +5,7 @@ frames of the simulator (depth_nodes.sim.tof) with and without noise and multipa
 Tolerances: unwrapped ranges of exact phases within 1e-4 m (float32 phases); the depth of
 a noise-free frame without multipath within 0.1 % of Z at the median and 1 % at the 99th
 percentile away from edges (a pixel sums 2 x 2 rays of slightly different range); a noisy
-frame with multipath within 1 % at the median (the issue's target).
+frame with multipath within 1 % at the median (the target).
 """
 
 from __future__ import annotations

@@ -70,7 +70,7 @@ def test_a_stamp_far_ahead_costs_only_its_own_frame(context: Context,
     """A camera_info stamped 68 years ahead, then the next frame: its camera_info jumps
     back, which starts the inputs over. The image of that frame, already waiting when its
     camera_info came second, was discarded with the rest (time_jump), so the frame after
-    the hostile stamp was lost too (issue 33; a looping bag lost the first frame of each
+    the hostile stamp was lost too (a looping bag lost the first frame of each
     repeat the same way). What waits stamped no later than the stamp that jumped back
     belongs to the new timeline and is kept."""
     node = _wired(RectifyNode(context=context))

@@ -2,7 +2,7 @@
 driver would send them, depth, amplitude, confidence and points out, checked against the
 exact ground truth; the message convention, parameters and every drop reason.
 
-Tolerance: the depth within 1 % of Z at the median (the issue's target; measured 0.3 %
+Tolerance: the depth within 1 % of Z at the median (the target; measured 0.3 %
 at VGA), points equal to the published depth's back-projection to float precision.
 """
 

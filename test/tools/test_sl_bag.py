@@ -1,5 +1,5 @@
 """Structured-light bags: written, read back, run through the node offline, scored; the
-bundled bag meets the issue's targets."""
+bundled bag meets the targets."""
 
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ def test_bundled_bag_meets_the_targets() -> None:
     assert phase.depth_rms_mm < 6.0
     assert rows['gray'].rms is not None
     assert 0.2 < rows['gray'].rms < 0.4  # integer columns: 1/sqrt(12) = 0.29 px
-    # single-shot speckle, the issue's targets: >= 95 % of lit pixels decoded (measured
+    # single-shot speckle, the targets: >= 95 % of lit pixels decoded (measured
     # 95.9 %), <= 1 % of shadowed ones given a depth (0.79 %); depth RMS 4.0 mm
     speckle = rows['speckle']
     assert speckle.decoded is not None

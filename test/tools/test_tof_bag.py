@@ -1,5 +1,5 @@
 """Time-of-flight bags: written, run through the tof node offline with the shipped graph,
-scored by eval-tof; the bundled bag meets the issue's targets, through the command a user
+scored by eval-tof; the bundled bag meets the targets, through the command a user
 runs; bench tof prints frames/s."""
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def test_the_bundled_bag_meets_the_targets_from_the_command_line(tmp_path: Path,
                                                                    ) -> None:
     """`depth-nodes process` with the shipped graph, then `eval-tof`, as a user runs them.
 
-    Targets of the issue: median |dZ|/Z <= 1 % where a depth is published (measured
+    Targets: median |dZ|/Z <= 1 % where a depth is published (measured
     0.32 %), coverage >= 95 % outside saturated / dark areas (96.9 %), unambiguous range
     >= 4x one frequency's (4.0x), no flying pixel (a mixed pixel more than 5 cm off both
     its surfaces; none left of 1597, 5 - 6 mixed pixels keep a depth near a surface).
