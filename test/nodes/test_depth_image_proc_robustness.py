@@ -1,7 +1,7 @@
 """The depth_image_proc nodes' failures found by the reliability campaign, one test each: a
 message that gave an empty output, raised, divided by zero or wrote outside its footprint
-is now a counted drop with its reason (or, for an extreme depth, the output it should give), and the next good
-frame comes through."""
+is now a counted drop with its reason (or, for an extreme depth, the output it should
+give), and the next good frame comes through."""
 
 from __future__ import annotations
 
