@@ -34,7 +34,7 @@ from depth_nodes.tools.bags.tof import NAMESPACE, read_topics
 
 #: Distance, metres, off both surfaces that makes a mixed pixel's depth a flying pixel.
 FLYING_OFF = 0.05
-#: The targets of the issue the scores are read against.
+#: The targets the scores are read against (docs/nodes.md, tof).
 TARGET_MEDIAN, TARGET_COVERAGE, TARGET_RANGE_FACTOR = 0.01, 0.95, 4.0
 
 F32 = NDArray[np.float32]
