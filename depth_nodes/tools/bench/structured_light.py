@@ -1,9 +1,9 @@
 """`depth-nodes bench structured_light`: decoding one sequence of a structured-light bag,
 the core functions and the node's whole callback path, beside OpenCV's GrayCodePattern.
 
-The methods are those of ``eval-sl`` (tools/evaluation/structured_light.py); times are
-medians over repeated runs after one warm-up run, OpenCV's one run (its per-pixel
-``getProjPixel`` is slow).
+The methods are those ``eval`` scores on a structured-light bag
+(tools/evaluation/structured_light.py); times are medians over repeated runs after one
+warm-up run, OpenCV's one run (its per-pixel ``getProjPixel`` is slow).
 """
 
 from __future__ import annotations
