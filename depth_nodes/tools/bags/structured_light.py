@@ -145,7 +145,7 @@ def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfi
         """Each sequence (its frames are of use only together), then each speckle frame;
         lazy: a group is simulated when it is written."""
         for seq in range(config.sequences):
-            yield _sequence(sim, patterns, f'{seq}:{{}}/{pattern_set.count}', seq, next_stamp)
+            yield _sequence(sim, patterns, seq, pattern_set.count, next_stamp)
         for k in range(config.speckle_frames):
             yield _speckle(sim, dots, k, next_stamp)
 
@@ -156,10 +156,10 @@ def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfi
     return BAG.write_groups(path, config, groups(), overwrite=overwrite, on_complete=reference)
 
 
-def _sequence(sim: ProjectorCameraSim, patterns: NDArray[np.float32], tag: str, seq: int,
+def _sequence(sim: ProjectorCameraSim, patterns: NDArray[np.float32], seq: int, count: int,
               next_stamp: Callable[[], int]) -> Iterator[Frame]:
-    """The frames of pattern sequence ``seq`` (camera noise seeded by it), the ground truth
-    with the first; ``tag``: the pattern tag with ``{}`` for the index."""
+    """The frames of pattern sequence ``seq`` (camera noise seeded by it; tagged
+    ``seq:index/count``), the ground truth with the first."""
     capture = sim.capture(patterns, noise_seed=seq)
     cam, proj = sim.camera, sim.projector
     for index, image in enumerate(capture.images):
@@ -168,7 +168,7 @@ def _sequence(sim: ProjectorCameraSim, patterns: NDArray[np.float32], tag: str, 
         messages: list[tuple[str, Any]] = [
             ('image_raw', array_to_image(image, 'mono8', h)),
             ('camera_info', model_to_camera_info(cam, h)),
-            ('pattern', stamped_header(stamp, tag.format(index))),
+            ('pattern', stamped_header(stamp, f'{seq}:{index}/{count}')),
             ('projector/camera_info',
              model_to_camera_info(proj, stamped_header(stamp, proj.frame_id)))]
         if index == 0:
