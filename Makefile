@@ -55,7 +55,7 @@ demo: venv
 	  --matching-costs census,learned,census+learned
 	$(BIN)/depth-nodes process bags/depth_moving_camera $(DEMO_OUT)/depth_filter_out \
 	  --config config/depth_filter_pipeline.yaml
-	$(BIN)/depth-nodes eval-depth-filter $(DEMO_OUT)/depth_filter_out --librealsense
+	$(BIN)/depth-nodes eval $(DEMO_OUT)/depth_filter_out --librealsense
 
 # Regenerate the committed synthetic bags (deterministic from their seeds).
 bags: venv

@@ -216,6 +216,6 @@ class InputSet:
                          ' s (a looping bag or a restarted source)')
             self._last_stamp[topic] = stamp
             return True
-        self._accounting.drop('stamp_out_of_order', f'{topic}: stamp {stamp / 1e9:.9f} s is '
-                              f'not newer than the last one, {last / 1e9:.9f} s')
+        self._accounting.drop('stamp_out_of_order', f'{topic}: stamp {stamp / NS_PER_S:.9f} s is '
+                              f'not newer than the last one, {last / NS_PER_S:.9f} s')
         return False

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.geometry import Intrinsics, Pose
+from depth_nodes.core.stamps import NS_PER_S
 from depth_nodes.errors import ConfigError
 from depth_nodes.sim.layout import build_scene
 from depth_nodes.sim.sequence import pixel_rays
@@ -245,6 +246,6 @@ def _simulate(config: DepthSequenceConfig) -> Iterator[DepthFrame]:
             hit = hit.reshape(shape)
             seen = hit >= 0
             moving[seen] = movers[hit[seen]]
-        stamp = config.start_stamp_ns + round(index * 1e9 / config.frame_rate_hz)
+        stamp = config.start_stamp_ns + round(index * NS_PER_S / config.frame_rate_hz)
         yield DepthFrame(index, stamp, depth.astype(np.float32), truth, mixed & ~holes,
                          straddling & ~holes, holes, moving, pose, camera)

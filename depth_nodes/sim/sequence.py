@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.geometry import Intrinsics, Pose
+from depth_nodes.core.stamps import NS_PER_S
 from depth_nodes.errors import ConfigError
 from depth_nodes.sim.layout import build_scene
 from depth_nodes.sim.scene import Scene
@@ -278,7 +279,7 @@ def _simulate(config: SequenceConfig) -> Iterator[SequenceView]:
     for index in range(config.n_frames):
         body = body_pose(config, index)
         reported_body = _noisy(body, pose_rng, config.pose_noise_deg, config.pose_noise_m)
-        stamp = config.start_stamp_ns + round(index * 1e9 / config.frame_rate_hz)
+        stamp = config.start_stamp_ns + round(index * NS_PER_S / config.frame_rate_hz)
         for k, mount in enumerate(mounts):
             pose = body.compose(mount)
             rng = np.random.default_rng([config.seed, index, k, 7])

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.camera import EQUIDISTANT, PLUMB_BOB, RATIONAL_POLYNOMIAL, CameraModel
+from depth_nodes.core.stamps import NS_PER_S
 from depth_nodes.errors import ConfigError
 from depth_nodes.sim.layout import build_scene
 from depth_nodes.sim.rig import make_rig, rect_to_raw, undistort_pixels
@@ -333,7 +334,7 @@ def _simulate(config: StereoSimConfig) -> Iterator[StereoFrame]:
         rng = np.random.default_rng([config.seed, index, 11])
         images = [_render(scene, v, config, rng if k < 2 else None) for k, v in enumerate(views)]
         disparity, depth, occlusion = _ground_truth(scene, config, right)
-        stamp = config.start_stamp_ns + round(index * 1e9 / config.frame_rate_hz)
+        stamp = config.start_stamp_ns + round(index * NS_PER_S / config.frame_rate_hz)
         yield StereoFrame(
             index,
             stamp,

@@ -2,7 +2,8 @@
 
 Five node processes (as the launch file starts them), `depth-nodes play` and
 `depth-nodes record` in their own processes, all over DDS. The campaign bag
-(depth_nodes.tools.evaluation.campaign) puts a hostile stamp between every two good frames. Checked:
+(depth_nodes.tools.bags.bad_inputs) puts a hostile stamp between every two good frames. Checked
+(the drops each case must cause: test/campaign.py):
 no node dies; each hostile message is counted under its reason by the node that first
 sees it (read from the /diagnostics the nodes published, recorded in the bag) and logged;
 every good frame, and no hostile one, comes out as disparity, checked disparity, depth and
@@ -23,15 +24,16 @@ from typing import Any
 
 import pytest
 import rclpy
+from campaign import expected_drops
 from diagnostic_msgs.msg import DiagnosticArray
 from helpers import REPO, run_cli
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 from depth_nodes.graph.description import load_graph_config
+from depth_nodes.tools.bags.bad_inputs import START_NS, Campaign, write_bad_input_bag
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.bench.live import warm_up
-from depth_nodes.tools.evaluation.campaign import START_NS, Campaign, write_bad_input_bag
 from depth_nodes.tools.live.processes import GraphProcesses, StereoFeeder, load_stereo_frames
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -188,7 +190,7 @@ def _campaign_drops(replay: _Replay) -> dict[str, dict[str, int]]:
 def test_each_hostile_message_is_counted_by_reason(replay: _Replay) -> None:
     final = _campaign_drops(replay)
     assert len(final) == 5
-    for node, expected in replay.campaign.expected_drops().items():
+    for node, expected in expected_drops(replay.campaign).items():
         for reason, count in expected.items():
             assert final[node].get(reason) == count, (node, reason, final[node])
     # The first stage rejects nothing but what the campaign says, except that a lead-in
@@ -197,7 +199,7 @@ def test_each_hostile_message_is_counted_by_reason(replay: _Replay) -> None:
     for node in ('/stereo/left/rectify_left', '/stereo/right/rectify_right'):
         counts = dict(final[node])
         assert counts.pop('sync_unmatched', 0) <= lead_in, final[node]
-        assert counts == dict(replay.campaign.expected_drops().get(node, {})), final[node]
+        assert counts == dict(expected_drops(replay.campaign).get(node, {})), final[node]
     # the unpaired frames and the frames the rectifiers refused never complete a set
     assert final['/stereo/sgm_stereo'].get('sync_unmatched', 0) >= 1
     assert final['/stereo/point_cloud'].get('sync_unmatched', 0) >= 1
@@ -205,7 +207,7 @@ def test_each_hostile_message_is_counted_by_reason(replay: _Replay) -> None:
 
 
 def test_each_drop_reason_is_logged_with_a_clear_reason(replay: _Replay) -> None:
-    for node, expected in replay.campaign.expected_drops().items():
+    for node, expected in expected_drops(replay.campaign).items():
         log = replay.graph.log(node)
         for reason in expected:
             assert f'dropped frame ({reason}, 1 so far): ' in log, (node, reason, log[-3000:])

@@ -49,7 +49,7 @@ MODULE_KEYS = {
 #: dependency of the package on a robot (setup.py's extras name them).
 OPTIONAL = {
     'ray': 'cluster',  # depth-nodes process --ray
-    # eval-depth-filter --librealsense, bench depth_filter: librealsense's filters beside
+    # eval --librealsense, bench depth_filter: librealsense's filters beside
     'pyrealsense2': 'realsense',
     'libusb_package': 'realsense',
     'jax': 'train',  # depth-nodes train-cost / train-confidence

@@ -17,7 +17,7 @@ from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.image import image_to_array, to_gray
 from depth_nodes.tools.bags import depth_filter as depth
 from depth_nodes.tools.bags import multiview as mvs
-from depth_nodes.tools.bags.generate import PRESETS, config_from_bag_metadata, write_stereo_bag
+from depth_nodes.tools.bags.generate import PRESETS, config_from_metadata, write_stereo_bag
 from depth_nodes.tools.bags.io import BagReader
 
 pytestmark = pytest.mark.slow
@@ -45,7 +45,7 @@ def test_bags_are_small() -> None:
 def test_bag_matches_its_preset(name: str) -> None:
     config = PRESETS[name]
     with BagReader(BAGS / name) as reader:
-        assert config_from_bag_metadata(reader.custom_data) == config
+        assert config_from_metadata(reader.custom_data, BAGS / name) == config
         assert len(reader.topics) == 9
         assert set(reader.counts.values()) == {config.n_frames}
         assert (BAGS / name / 'metadata.yaml').is_file()

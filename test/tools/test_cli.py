@@ -71,7 +71,9 @@ def test_ground_truth_topic_of_the_wrong_type(tmp_path: Path) -> None:
     _wrong_type(tmp_path / 'bag')
     result = run_cli(['eval', str(tmp_path / 'bag')])
     assert result.returncode == 1
-    assert 'has no ground truth (…/left/disparity_gt) to score against' in result.stderr
+    assert 'has no ground truth to score against: cannot tell its kind (looked for a ' \
+        'stereo ground truth, …/left/disparity_gt of type stereo_msgs/msg/DisparityImage' \
+        in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
 
 

@@ -13,7 +13,7 @@ from helpers import run_cli
 from rosbags.typesys import Stores, get_typestore
 
 from depth_nodes.sim import StereoSimConfig
-from depth_nodes.tools.bags.generate import config_from_bag_metadata, write_stereo_bag
+from depth_nodes.tools.bags.generate import config_from_metadata, write_stereo_bag
 from depth_nodes.tools.bags.io import BagReader
 
 pytestmark = pytest.mark.slow
@@ -50,7 +50,7 @@ def frames(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[dict[st
     by_stamp: dict[int, dict[str, object]] = {}
     with BagReader(path) as reader:
         assert reader.topics == TOPICS
-        assert config_from_bag_metadata(reader.custom_data) == CONFIG
+        assert config_from_metadata(reader.custom_data, path) == CONFIG
         for m in reader.messages():
             msg = TYPESTORE.deserialize_cdr(m.data, m.msgtype)
             stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
@@ -146,7 +146,7 @@ def test_generate_cli_writes_a_readable_bag(tmp_path: Path) -> None:
                       '--frames', '1', '--seed', '99'])
     assert result.returncode == 0, result.stderr
     with BagReader(tmp_path / 'bag') as reader:
-        config = config_from_bag_metadata(reader.custom_data)
+        config = config_from_metadata(reader.custom_data, tmp_path / 'bag')
         assert reader.counts['/stereo/left/image_raw'] == 1
     assert config.seed == 99
     assert config.distortion_model == 'equidistant'

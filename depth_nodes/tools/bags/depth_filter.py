@@ -37,8 +37,7 @@ from depth_nodes.sim.depth_sequence import (
     simulate_depth_sequence,
 )
 from depth_nodes.tools.bags.multiview import camera_model, odometry_message
-from depth_nodes.tools.bags.simulated import SimulatedBag
-from depth_nodes.tools.bags.structured_light import stamped_header
+from depth_nodes.tools.bags.simulated import SimulatedBag, stamped_header
 
 NAMESPACE = '/camera'
 FRAME_ID = 'camera_depth_optical_frame'

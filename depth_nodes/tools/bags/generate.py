@@ -20,21 +20,18 @@ topic                           type                         content
 
 from __future__ import annotations
 
-import dataclasses
-import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from std_msgs.msg import Header
 
 from depth_nodes.errors import ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim import StereoFrame, StereoSimConfig, simulate_stereo, validate_config
-from depth_nodes.tools.bags.io import BagWriter
-from depth_nodes.tools.signals import stop_requested
+from depth_nodes.tools.bags.simulated import Frame, SimulatedBag, stamped_header
 
 NAMESPACE = '/stereo'
 
@@ -50,26 +47,16 @@ PRESETS: dict[str, StereoSimConfig] = {
         right_cx_offset=3.0),
 }
 
-#: zstd level of generated bags: slow to write, but the float ground truth shrinks ~40%.
-COMPRESSION_LEVEL = 19
-
 #: The metadata key under which a bag stores the simulator configuration that made it.
 CONFIG_KEY = 'depth_nodes.sim.stereo'
 
 
-def _header(stamp_ns: int, frame_id: str) -> Header:
-    header = Header()
-    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    header.frame_id = frame_id
-    return header
-
-
-def frame_messages(frame: StereoFrame, namespace: str = NAMESPACE) -> list[tuple[str, object]]:
+def frame_messages(frame: StereoFrame, namespace: str = NAMESPACE) -> list[tuple[str, Any]]:
     """The (topic, message) pairs of one simulated frame, in publishing order."""
     encoding = 'rgb8' if frame.left_raw.ndim == 3 else 'mono8'
     left, right = frame.left_camera, frame.right_camera
-    left_h = _header(frame.stamp_ns, left.frame_id)
-    right_h = _header(frame.stamp_ns, right.frame_id)
+    left_h = stamped_header(frame.stamp_ns, left.frame_id)
+    right_h = stamped_header(frame.stamp_ns, right.frame_id)
     focal = float(left.P[0, 0])
     baseline = float(left.P[0, 3] / left.P[0, 0] - right.P[0, 3] / right.P[0, 0])
     finite = frame.disparity_gt[np.isfinite(frame.disparity_gt)]
@@ -93,6 +80,11 @@ def frame_messages(frame: StereoFrame, namespace: str = NAMESPACE) -> list[tuple
     ]
 
 
+BAG: SimulatedBag[StereoSimConfig] = SimulatedBag(
+    CONFIG_KEY, 'a simulated stereo bag', 'depth-nodes generate --preset stereo_vga (or '
+    'another stereo_*)', lambda doc: StereoSimConfig(**doc))
+
+
 def write_stereo_bag(
     path: str | Path,
     config: StereoSimConfig,
@@ -102,33 +94,33 @@ def write_stereo_bag(
 ) -> int:
     """Simulate ``config`` and write the bag at ``path``; returns the number of messages.
 
+    ``on_frame`` is called with each frame's index once it is written.
+
     Raises:
         SimConfigError: An invalid configuration (checked before anything is written).
+        BagError: ``path`` exists and ``overwrite`` is False.
     """
     validate_config(config)
-    count = 0
-    with BagWriter(path, overwrite=overwrite, compression_level=COMPRESSION_LEVEL) as writer:
-        writer.set_custom_data(CONFIG_KEY, json.dumps(dataclasses.asdict(config)))
-        for frame in simulate_stereo(config):
-            if stop_requested():  # SIGINT / SIGTERM: the bag holds whole frames only
-                break
-            for topic, msg in frame_messages(frame):
-                writer.write(topic, msg, frame.stamp_ns)
-                count += 1
-            if on_frame is not None:
-                on_frame(frame.index)
-    return count
+    return BAG.write(path, config, _frames(config, on_frame), overwrite=overwrite)
 
 
-def config_from_bag_metadata(custom_data: dict[str, str]) -> StereoSimConfig:
-    """The simulator configuration recorded in a generated bag's metadata.
+def _frames(config: StereoSimConfig, on_frame: Callable[[int], None] | None
+            ) -> Iterator[Frame]:
+    for frame in simulate_stereo(config):
+        yield frame.stamp_ns, frame_messages(frame)
+        if on_frame is not None:  # resumed for the next frame: this one is written
+            on_frame(frame.index)
+
+
+def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> StereoSimConfig:
+    """The simulator configuration a generated stereo bag (or one processed from it)
+    records.
 
     Raises:
-        ConfigError: The bag was not made by ``depth-nodes generate``.
+        BagError: No such metadata (not made by ``depth-nodes generate``), or it does not
+            parse.
     """
-    if CONFIG_KEY not in custom_data:
-        raise ConfigError('bag has no simulator configuration (not made by depth-nodes generate)')
-    return StereoSimConfig(**json.loads(custom_data[CONFIG_KEY]))
+    return BAG.config(custom_data, path)
 
 
 def preset(name: str) -> StereoSimConfig:

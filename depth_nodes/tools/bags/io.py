@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import shutil
+import struct
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator, Sequence
@@ -28,6 +29,7 @@ from rosbags.rosbag2 import (
 )
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from depth_nodes.core.stamps import NS_PER_S
 from depth_nodes.errors import BagError, yaml_problem
 from depth_nodes.tools.bags.chunks import chunks_on_a_thread, set_chunk_compression_level
 
@@ -70,6 +72,21 @@ def serialize(msg: Any, msgtype: str | None = None) -> bytes:
     if msgtype not in _TYPESTORE.types:
         return bytes(data)
     return bytes(_TYPESTORE.serialize_cdr(_TYPESTORE.deserialize_cdr(data, msgtype), msgtype))
+
+
+def header_stamp(cdr: bytes) -> int:
+    """The header stamp (ns) of a serialised message whose first field is a
+    std_msgs/Header (every image, disparity and cloud type): read from the CDR bytes, after
+    the 4-byte encapsulation header whose second byte says the byte order.
+
+    Raises:
+        BagError: Too few bytes to hold a header stamp.
+    """
+    order = '<' if len(cdr) > 1 and cdr[1] & 1 else '>'
+    if len(cdr) < 12:
+        raise BagError('a message too short to hold a header stamp')
+    sec, nanosec = struct.unpack_from(f'{order}iI', cdr, 4)
+    return int(sec) * NS_PER_S + int(nanosec)
 
 
 def message_type_name(msg_or_class: Any) -> str:

@@ -43,6 +43,7 @@ from rosbags.interfaces import (
 )
 from rosgraph_msgs.msg import Clock
 
+from depth_nodes.core.stamps import NS_PER_S, stamp_ns, stamp_parts
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.graph.description import checked_namespace
 from depth_nodes.tools.bags.io import BagReader, BagWriter, message_class
@@ -171,7 +172,7 @@ def play_bag(path: str | Path, options: PlayOptions | None = None,
             published += _play_once(reader, topics, pubs, clock_pub, options.rate, shift)
             if not options.loop:
                 break
-            STOP.wait(period / 1e9 / options.rate)  # the next repeat a period later
+            STOP.wait(period / NS_PER_S / options.rate)  # the next repeat a period later
             if options.restamp:
                 shift += step
         if stop_requested():
@@ -237,8 +238,7 @@ def _shift_stamps(msg: Any, shift: int) -> bool:
     for name, kind in msg.get_fields_and_field_types().items():
         value = getattr(msg, name)
         if kind == 'std_msgs/Header':
-            total = value.stamp.sec * 1_000_000_000 + value.stamp.nanosec + shift
-            value.stamp.sec, value.stamp.nanosec = divmod(total, 1_000_000_000)
+            value.stamp.sec, value.stamp.nanosec = stamp_parts(stamp_ns(value) + shift)
             found = True
         elif hasattr(value, 'get_fields_and_field_types'):
             found |= _shift_stamps(value, shift)
@@ -275,13 +275,12 @@ def _play_once(reader: BagReader, topics: list[str], pubs: dict[str, Any],
     for bag_msg in reader.messages(topics):
         if start_bag is None:
             start_bag = bag_msg.timestamp
-        delay = start_wall + (bag_msg.timestamp - start_bag) / 1e9 / rate - time.monotonic()
+        delay = start_wall + (bag_msg.timestamp - start_bag) / NS_PER_S / rate - time.monotonic()
         if (delay > 0 and STOP.wait(delay)) or stop_requested():
             break
         if clock_pub is not None:
             clock = Clock()
-            clock.clock.sec, clock.clock.nanosec = divmod(bag_msg.timestamp + shift,
-                                                          1_000_000_000)
+            clock.clock.sec, clock.clock.nanosec = stamp_parts(bag_msg.timestamp + shift)
             clock_pub.publish(clock)
         bag_msg.check()  # the bytes a subscriber gets must be its topic's type
         data = _restamped(bag_msg, shift) if shift else bag_msg.data
@@ -294,7 +293,7 @@ def _to_bag_qos(profile: QoSProfile) -> Any:
     """An rclpy QoS profile as rosbags' Qos tuple (what rosbag2 writes to metadata)."""
 
     def when(duration: Any) -> Any:
-        sec, nsec = divmod(int(duration.nanoseconds), 1_000_000_000)
+        sec, nsec = stamp_parts(duration.nanoseconds)
         return QosTime(min(sec, 2 ** 31 - 1), nsec)
 
     return Qos(QosHistory(int(profile.history)), int(profile.depth),

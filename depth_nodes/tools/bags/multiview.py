@@ -29,27 +29,22 @@ The simulator configuration is stored in the bag's metadata (``custom_data``, ke
 
 from __future__ import annotations
 
-import dataclasses
-import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
-from std_msgs.msg import Header
 
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.geometry import Intrinsics, Pose
-from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim.sequence import SequenceConfig, SequenceView, rig_extrinsics, simulate_sequence
-from depth_nodes.tools.bags.io import BagWriter
-from depth_nodes.tools.signals import stop_requested
+from depth_nodes.tools.bags.simulated import Frame, SimulatedBag, stamped_header
 
 CONFIG_KEY = 'depth_nodes.sim.sequence'
-COMPRESSION_LEVEL = 19
 WORLD = 'world'
 STEREO = '/stereo'
 
@@ -69,12 +64,6 @@ def namespace(config: SequenceConfig) -> str:
     return '/rig' if config.motion == 'rig' else '/mvs'
 
 
-def _header(stamp_ns: int, frame_id: str) -> Header:
-    header = Header(frame_id=frame_id)
-    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    return header
-
-
 def camera_model(camera: Intrinsics, frame_id: str, tx: float = 0.0) -> CameraModel:
     """A rectified pinhole CameraModel (``tx``: P's -f B of a right stereo camera)."""
     k = np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1.0]])
@@ -85,7 +74,7 @@ def camera_model(camera: Intrinsics, frame_id: str, tx: float = 0.0) -> CameraMo
 
 def pose_message(pose: Pose, stamp_ns: int) -> PoseStamped:
     """``pose`` as a PoseStamped in the world frame."""
-    msg = PoseStamped(header=_header(stamp_ns, WORLD))
+    msg = PoseStamped(header=stamped_header(stamp_ns, WORLD))
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (
         float(v) for v in pose.position)
     q = pose.quaternion
@@ -96,14 +85,14 @@ def pose_message(pose: Pose, stamp_ns: int) -> PoseStamped:
 
 def odometry_message(pose: Pose, stamp_ns: int, child: str) -> Odometry:
     """``pose`` as the Odometry a VIO publishes (``child``: the moving frame)."""
-    msg = Odometry(header=_header(stamp_ns, WORLD), child_frame_id=child)
+    msg = Odometry(header=stamped_header(stamp_ns, WORLD), child_frame_id=child)
     msg.pose.pose = pose_message(pose, stamp_ns).pose
     return msg
 
 
 def view_messages(view: SequenceView, ns: str, frame_id: str) -> list[tuple[str, Any]]:
     """The image, camera_info and depth of one view under ``ns``."""
-    h = _header(view.stamp_ns, frame_id)
+    h = stamped_header(view.stamp_ns, frame_id)
     return [(f'{ns}/image_rect', array_to_image(view.image, 'mono8', h)),
             (f'{ns}/camera_info', model_to_camera_info(camera_model(view.intrinsics, frame_id),
                                                        h)),
@@ -118,14 +107,14 @@ def _stereo_messages(left: SequenceView, right: SequenceView,
     out = []
     for side, view, tx in (('left', left, 0.0), ('right', right, -camera.fx * baseline)):
         frame = f'stereo_{side}_optical'
-        h = _header(view.stamp_ns, frame)
+        h = stamped_header(view.stamp_ns, frame)
         out += [(f'{STEREO}/{side}/image_raw', array_to_image(view.image, 'mono8', h)),
                 (f'{STEREO}/{side}/camera_info',
                  model_to_camera_info(camera_model(camera, frame, tx), h))]
     with np.errstate(divide='ignore', invalid='ignore'):
         disparity = (camera.fx * baseline / left.depth).astype(np.float32)
-    out.append((f'{STEREO}/left/disparity_gt',
-                array_to_image(disparity, '32FC1', _header(left.stamp_ns, 'stereo_left_optical'))))
+    header = stamped_header(left.stamp_ns, 'stereo_left_optical')
+    out.append((f'{STEREO}/left/disparity_gt', array_to_image(disparity, '32FC1', header)))
     return out
 
 
@@ -153,31 +142,33 @@ def step_messages(config: SequenceConfig, views: list[SequenceView]) -> list[tup
     return out
 
 
+BAG: SimulatedBag[SequenceConfig] = SimulatedBag(
+    CONFIG_KEY, 'a multi-view sequence bag', 'depth-nodes generate --preset mvs_*, then '
+    'process', lambda doc: SequenceConfig(**doc).validate())
+
+
 def write_sequence_bag(path: str | Path, config: SequenceConfig, *,
                        overwrite: bool = False) -> int:
-    """Simulate ``config`` and write the bag at ``path``; returns the number of messages.
+    """Simulate ``config`` and write the bag at ``path``; returns the number of messages. A
+    signal stops between whole time steps.
 
     Raises:
         ConfigError: An invalid configuration.
         BagError: ``path`` exists and ``overwrite`` is False.
     """
     config.validate()
+    return BAG.write(path, config, _steps(config), overwrite=overwrite)
+
+
+def _steps(config: SequenceConfig) -> Iterator[Frame]:
+    """One frame per time step: a view, or a rig's views (at the step's last stamp)."""
     per_step = config.rig_cameras if config.motion == 'rig' else 1
-    count = 0
-    with BagWriter(path, overwrite=overwrite, compression_level=COMPRESSION_LEVEL) as writer:
-        writer.set_custom_data(CONFIG_KEY, json.dumps(dataclasses.asdict(config)))
-        step: list[SequenceView] = []
-        for view in simulate_sequence(config):
-            step.append(view)
-            if len(step) < per_step:
-                continue
-            if stop_requested():  # SIGINT / SIGTERM: whole steps only
-                break
-            for topic, msg in step_messages(config, step):
-                writer.write(topic, msg, view.stamp_ns)
-                count += 1
+    step: list[SequenceView] = []
+    for view in simulate_sequence(config):
+        step.append(view)
+        if len(step) == per_step:
+            yield view.stamp_ns, step_messages(config, step)
             step = []
-    return count
 
 
 def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> SequenceConfig:
@@ -186,11 +177,4 @@ def config_from_metadata(custom_data: dict[str, str], path: str | Path) -> Seque
     Raises:
         BagError: No such metadata, or it does not parse.
     """
-    if CONFIG_KEY not in custom_data:
-        raise BagError(f'{path} is not a multi-view sequence bag (no {CONFIG_KEY} metadata: '
-                       'made by depth-nodes generate --preset mvs_*, then process)')
-    try:
-        return SequenceConfig(**json.loads(custom_data[CONFIG_KEY])).validate()
-    except (ValueError, TypeError, ConfigError) as exc:
-        raise BagError(f'{path}: malformed {CONFIG_KEY} metadata: {exc}') from None
-
+    return BAG.config(custom_data, path)

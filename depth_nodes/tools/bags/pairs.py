@@ -35,6 +35,7 @@ from depth_nodes.core.groundtruth import (
     read_disparity_file,
     read_image,
 )
+from depth_nodes.core.stamps import NS_PER_S, stamp_parts
 from depth_nodes.errors import CalibrationError, ConfigError, InputFileError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import build_disparity
@@ -95,7 +96,7 @@ class ImportSummary:
 
 def _header(stamp_ns: int, frame_id: str) -> Header:
     header = Header()
-    header.stamp.sec, header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    header.stamp.sec, header.stamp.nanosec = stamp_parts(stamp_ns)
     header.frame_id = frame_id
     return header
 
@@ -211,7 +212,7 @@ def import_pair(source: PairSource, out: str | Path, *, overwrite: bool = False
     count = 0
     with BagWriter(out, overwrite=overwrite) as writer:
         for i in range(source.frames):
-            stamp = FIRST_STAMP_S * 1_000_000_000 + i * PERIOD_NS
+            stamp = FIRST_STAMP_S * NS_PER_S + i * PERIOD_NS
             lh, rh = _header(stamp, left_cam.frame_id), _header(stamp, right_cam.frame_id)
             msgs: list[tuple[str, object]] = [
                 (f'{ns}/left/image_raw', array_to_image(left_img, encoding, lh)),

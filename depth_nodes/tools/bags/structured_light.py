@@ -29,8 +29,9 @@ metadata (``custom_data``, key :data:`CONFIG_KEY`).
 from __future__ import annotations
 
 import dataclasses
-import json
+import itertools
 from collections import defaultdict
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,6 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from std_msgs.msg import Header
 
 from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.structured_light import PatternSet, generate_patterns, speckle_pattern
@@ -47,15 +47,17 @@ from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.ros.camera_info import camera_info_to_model, model_to_camera_info
 from depth_nodes.ros.image import array_to_image, image_to_array
 from depth_nodes.sim.projector import ProjectorCameraSim, ProjectorSimConfig, reference_plane_scene
-from depth_nodes.tools.bags.io import BagReader, BagWriter
-from depth_nodes.tools.signals import stop_requested
+from depth_nodes.tools.bags.simulated import Frame, SimulatedBag, stamped_header
 
 NAMESPACE = '/sl'
 CONFIG_KEY = 'depth_nodes.sim.structured_light'
 REFERENCE_FILE = 'speckle_reference.png'
 #: Extra columns of the speckle reference on each side of the camera's width.
 REFERENCE_MARGIN = 64
-COMPRESSION_LEVEL = 19
+#: The four topics every sequence frame has.
+SEQUENCE_TOPICS = ('image_raw', 'pattern', 'camera_info', 'projector/camera_info')
+#: The ground truth, at each sequence's first stamp.
+GT_TOPICS = ('depth_gt', 'projector_u_gt', 'projector_v_gt', 'shadow_gt')
 
 
 @dataclass(frozen=True)
@@ -92,14 +94,9 @@ class StructuredLightBagConfig:
         return PatternSet(self.mode, self.sim.projector_width, self.sim.projector_height,
                           self.axes, self.steps, self.period)
 
-    def to_json(self) -> str:
-        """JSON of every field (the bag metadata)."""
-        return json.dumps(dataclasses.asdict(self))
-
     @classmethod
-    def from_json(cls, text: str) -> StructuredLightBagConfig:
-        """Inverse of :meth:`to_json`."""
-        doc = json.loads(text)
+    def from_dict(cls, doc: dict[str, Any]) -> StructuredLightBagConfig:
+        """Inverse of :func:`dataclasses.asdict` (the bag metadata's JSON document)."""
         sim = doc.pop('sim')
         for key in ('camera_distortion', 'projector_distortion'):
             sim[key] = tuple(sim[key])
@@ -112,16 +109,17 @@ PRESETS: dict[str, StructuredLightBagConfig] = {
 }
 
 
-def stamped_header(stamp_ns: int, frame_id: str) -> Header:
-    """A std_msgs/Header at ``stamp_ns`` nanoseconds in ``frame_id``."""
-    header = Header(frame_id=frame_id)
-    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    return header
+BAG: SimulatedBag[StructuredLightBagConfig] = SimulatedBag(
+    CONFIG_KEY, 'a structured-light bag', 'depth-nodes generate --preset '
+    'structured_light_vga', StructuredLightBagConfig.from_dict)
 
 
 def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfig, *,
                                overwrite: bool = False) -> int:
     """Simulate ``config`` and write the bag (and its speckle reference) at ``path``.
+
+    A signal stops between whole sequences and between speckle frames; the reference is
+    written beside a complete bag only.
 
     Returns:
         The number of messages written.
@@ -135,59 +133,74 @@ def write_structured_light_bag(path: str | Path, config: StructuredLightBagConfi
         raise ConfigError('sequences need mode gray, phase or opencv, and counts >= 0')
     sim = ProjectorCameraSim(config.sim)
     patterns = generate_patterns(pattern_set)
+    dots = speckle_pattern(sim.projector.width, sim.projector.height, seed=config.sim.seed,
+                           density=config.sim.speckle_density)[None]
+    frame = itertools.count()
     period_ns = 1e9 / config.frame_rate_hz
-    cam, proj = sim.camera, sim.projector
-    count = 0
-    frame = 0
-    with BagWriter(path, overwrite=overwrite, compression_level=COMPRESSION_LEVEL) as writer:
-        writer.set_custom_data(CONFIG_KEY, config.to_json())
 
-        def put(topic: str, msg: Any, stamp: int) -> None:
-            nonlocal count
-            writer.write(f'{NAMESPACE}/{topic}', msg, stamp)
-            count += 1
+    def next_stamp() -> int:
+        return config.start_stamp_ns + round(next(frame) * period_ns)
 
+    def groups() -> Iterator[Iterator[Frame]]:
+        """Each sequence (its frames are of use only together), then each speckle frame;
+        lazy: a group is simulated when it is written."""
         for seq in range(config.sequences):
-            if stop_requested():  # SIGINT / SIGTERM: whole sequences only
-                return count
-            capture = sim.capture(patterns, noise_seed=seq)
-            for index, image in enumerate(capture.images):
-                stamp = config.start_stamp_ns + round(frame * period_ns)
-                frame += 1
-                h = stamped_header(stamp, cam.frame_id)
-                put('image_raw', array_to_image(image, 'mono8', h), stamp)
-                put('camera_info', model_to_camera_info(cam, h), stamp)
-                put('pattern', stamped_header(stamp, f'{seq}:{index}/{pattern_set.count}'), stamp)
-                put('projector/camera_info',
-                    model_to_camera_info(proj, stamped_header(stamp, proj.frame_id)), stamp)
-                if index == 0:
-                    for topic, arr, enc in (('depth_gt', capture.depth, '32FC1'),
-                                            ('projector_u_gt', capture.u, '32FC1'),
-                                            ('projector_v_gt', capture.v, '32FC1'),
-                                            ('shadow_gt', capture.shadow, 'mono8')):
-                        put(topic, array_to_image(arr, enc, h), stamp)
-        dots = speckle_pattern(proj.width, proj.height, seed=config.sim.seed,
-                               density=config.sim.speckle_density)[None]
+            yield _sequence(sim, patterns, seq, pattern_set.count, next_stamp)
         for k in range(config.speckle_frames):
-            if stop_requested():
-                return count
-            stamp = config.start_stamp_ns + round(frame * period_ns)
-            frame += 1
-            h = stamped_header(stamp, cam.frame_id)
-            image = sim.render(dots, noise_seed=1000 + k)[0]
-            put('speckle/image_raw', array_to_image(image, 'mono8', h), stamp)
-            put('speckle/camera_info', model_to_camera_info(cam, h), stamp)
-            put('projector/camera_info',
-                model_to_camera_info(proj, stamped_header(stamp, proj.frame_id)), stamp)
-    if config.speckle_frames:
-        # the reference is wider than the camera's images (REFERENCE_MARGIN columns each
-        # side, the same intrinsics otherwise): the dots that near and far surfaces at the
-        # image's sides show are in it
-        wide = dataclasses.replace(config.sim, width=config.sim.width + 2 * REFERENCE_MARGIN)
-        ref_sim = ProjectorCameraSim(wide, reference_plane_scene(config.reference_depth))
-        reference = ref_sim.render(dots, noise_seed=999, noise_sigma=config.sim.noise_sigma / 2)
-        cv2.imwrite(str(Path(path) / REFERENCE_FILE), reference[0])
-    return count
+            yield _speckle(sim, dots, k, next_stamp)
+
+    def reference(folder: Path) -> None:
+        if config.speckle_frames:
+            _write_reference(folder, config, dots)
+
+    return BAG.write_groups(path, config, groups(), overwrite=overwrite, on_complete=reference)
+
+
+def _sequence(sim: ProjectorCameraSim, patterns: NDArray[np.float32], seq: int, count: int,
+              next_stamp: Callable[[], int]) -> Iterator[Frame]:
+    """The frames of pattern sequence ``seq`` (camera noise seeded by it; tagged
+    ``seq:index/count``), the ground truth with the first."""
+    capture = sim.capture(patterns, noise_seed=seq)
+    cam, proj = sim.camera, sim.projector
+    for index, image in enumerate(capture.images):
+        stamp = next_stamp()
+        h = stamped_header(stamp, cam.frame_id)
+        messages: list[tuple[str, Any]] = [
+            ('image_raw', array_to_image(image, 'mono8', h)),
+            ('camera_info', model_to_camera_info(cam, h)),
+            ('pattern', stamped_header(stamp, f'{seq}:{index}/{count}')),
+            ('projector/camera_info',
+             model_to_camera_info(proj, stamped_header(stamp, proj.frame_id)))]
+        if index == 0:
+            messages += [(topic, array_to_image(arr, enc, h)) for topic, arr, enc in (
+                ('depth_gt', capture.depth, '32FC1'), ('projector_u_gt', capture.u, '32FC1'),
+                ('projector_v_gt', capture.v, '32FC1'), ('shadow_gt', capture.shadow, 'mono8'))]
+        yield stamp, [(f'{NAMESPACE}/{topic}', msg) for topic, msg in messages]
+
+
+def _speckle(sim: ProjectorCameraSim, dots: NDArray[np.float32], k: int,
+             next_stamp: Callable[[], int]) -> Iterator[Frame]:
+    """Speckle frame ``k``: the dot pattern seen by the camera (noise seeded by ``k``)."""
+    stamp = next_stamp()
+    cam, proj = sim.camera, sim.projector
+    h = stamped_header(stamp, cam.frame_id)
+    image = sim.render(dots, noise_seed=1000 + k)[0]
+    yield stamp, [
+        (f'{NAMESPACE}/speckle/image_raw', array_to_image(image, 'mono8', h)),
+        (f'{NAMESPACE}/speckle/camera_info', model_to_camera_info(cam, h)),
+        (f'{NAMESPACE}/projector/camera_info',
+         model_to_camera_info(proj, stamped_header(stamp, proj.frame_id)))]
+
+
+def _write_reference(folder: Path, config: StructuredLightBagConfig,
+                     dots: NDArray[np.float32]) -> None:
+    """The speckle reference beside the bag: wider than the camera's images
+    (:data:`REFERENCE_MARGIN` columns each side, the same intrinsics otherwise), so the dots
+    that near and far surfaces at the image's sides show are in it."""
+    wide = dataclasses.replace(config.sim, width=config.sim.width + 2 * REFERENCE_MARGIN)
+    ref_sim = ProjectorCameraSim(wide, reference_plane_scene(config.reference_depth))
+    reference = ref_sim.render(dots, noise_seed=999, noise_sigma=config.sim.noise_sigma / 2)
+    cv2.imwrite(str(folder / REFERENCE_FILE), reference[0])
 
 
 @dataclass
@@ -222,18 +235,10 @@ def read_structured_light_bag(path: str | Path) -> StructuredLightBag:
         BagError: Missing bag, topic or metadata, or an unusable message.
     """
     path = Path(path)
-    with BagReader(path) as reader:
-        if CONFIG_KEY not in reader.custom_data:
-            raise BagError(f'{path} is not a structured-light bag (no {CONFIG_KEY} metadata)')
-        try:
-            config = StructuredLightBagConfig.from_json(reader.custom_data[CONFIG_KEY])
-        except (ValueError, TypeError, KeyError) as exc:
-            raise BagError(f'{path}: malformed {CONFIG_KEY} metadata: {exc}') from None
-        for topic in ('image_raw', 'pattern', 'camera_info', 'projector/camera_info'):
-            reader.require(f'{NAMESPACE}/{topic}')
-        by_topic: dict[str, dict[int, Any]] = defaultdict(dict)
-        for m in reader.messages():
-            by_topic[m.topic.removeprefix(NAMESPACE + '/')][m.timestamp] = m.deserialize()
+    topics = [f'{NAMESPACE}/{t}' for t in (*SEQUENCE_TOPICS, *GT_TOPICS, 'speckle/image_raw')]
+    config, found = BAG.read(path, topics, optional=tuple(topics[len(SEQUENCE_TOPICS):]))
+    by_topic = {topic.removeprefix(NAMESPACE + '/'): messages
+                for topic, messages in found.items()}
     try:
         camera = camera_info_to_model(next(iter(by_topic['camera_info'].values())))
         projector = camera_info_to_model(next(iter(by_topic['projector/camera_info'].values())))
@@ -250,9 +255,8 @@ def read_structured_light_bag(path: str | Path) -> StructuredLightBag:
             if sorted(frames) != list(range(n)):
                 continue
             first = frames[0][0]
-            gt = {k: image_to_array(by_topic[k][first]) for k in
-                  ('depth_gt', 'projector_u_gt', 'projector_v_gt', 'shadow_gt')
-                  if first in by_topic.get(k, {})}
+            gt = {k: image_to_array(by_topic[k][first]) for k in GT_TOPICS
+                  if first in by_topic[k]}
             sequences.append(Sequence(number, first, np.stack([frames[i][1] for i in range(n)]),
                                       gt))
         speckle = [image_to_array(m) for _, m in sorted(by_topic['speckle/image_raw'].items())]

@@ -28,12 +28,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from std_msgs.msg import Header
 
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim.tof import ToFFrame, ToFSimConfig, simulate_tof
-from depth_nodes.tools.bags.simulated import SimulatedBag
+from depth_nodes.tools.bags.simulated import SimulatedBag, stamped_header
 
 NAMESPACE = '/tof'
 CONFIG_KEY = 'depth_nodes.sim.tof'
@@ -42,15 +41,9 @@ CONFIG_KEY = 'depth_nodes.sim.tof'
 PRESETS: dict[str, ToFSimConfig] = {'tof_vga': ToFSimConfig()}
 
 
-def _header(stamp_ns: int, frame_id: str) -> Header:
-    header = Header(frame_id=frame_id)
-    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    return header
-
-
 def frame_messages(frame: ToFFrame) -> list[tuple[str, Any]]:
     """The (topic, message) pairs of one simulated frame."""
-    h = _header(frame.stamp_ns, frame.camera.frame_id)
+    h = stamped_header(frame.stamp_ns, frame.camera.frame_id)
     planes, height, width = frame.samples.shape
     stacked = np.ascontiguousarray(frame.samples.reshape(planes * height, width))
     return [
@@ -72,7 +65,8 @@ def _parse(doc: dict[str, Any]) -> ToFSimConfig:
 
 
 BAG: SimulatedBag[ToFSimConfig] = SimulatedBag(
-    CONFIG_KEY, 'a time-of-flight bag', 'depth-nodes generate --preset tof_vga', _parse)
+    CONFIG_KEY, 'a time-of-flight bag', 'depth-nodes generate --preset tof_vga, then '
+    'process', _parse)
 
 
 def write_tof_bag(path: str | Path, config: ToFSimConfig, *, overwrite: bool = False) -> int:

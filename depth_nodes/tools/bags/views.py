@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.geometry import Intrinsics, Pose
+from depth_nodes.core.stamps import NS_PER_S
 from depth_nodes.errors import BagError, ConfigError
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.image import array_to_image
@@ -275,7 +276,7 @@ def write_views_bag(views: list[View], out: str | Path, *, namespace: str = '/vi
             for index, view in enumerate(views):
                 if stop_requested():
                     break
-                stamp = START_NS + round(index * 1e9 / rate)
+                stamp = START_NS + round(index * NS_PER_S / rate)
                 pixels, encoding = _load(view)
                 header = pose_message(view.pose, stamp).header
                 header.frame_id = FRAME_ID

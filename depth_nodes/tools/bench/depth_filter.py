@@ -33,7 +33,7 @@ from depth_nodes.ros.image import array_to_image
 from depth_nodes.sim.depth_sequence import DepthFrame, DepthSequenceConfig, simulate_depth_sequence
 from depth_nodes.tools.bags.depth_filter import FRAME_ID
 from depth_nodes.tools.bags.multiview import camera_model, odometry_message
-from depth_nodes.tools.bags.structured_light import stamped_header
+from depth_nodes.tools.bags.simulated import stamped_header
 from depth_nodes.tools.bench.sgm import busy_loops
 from depth_nodes.tools.evaluation import librealsense as rs
 

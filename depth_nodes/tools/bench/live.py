@@ -33,6 +33,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.utilities import try_shutdown
 
+from depth_nodes.core.stamps import NS_PER_S
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import GraphConfig, load_graph_config
 from depth_nodes.nodes.sgm_stereo import CENSUS_DEFAULTS
@@ -308,7 +309,7 @@ def warm_up(feeder: StereoFeeder, frames: list[StereoFrame], graph: GraphProcess
     two ends of a connection one after the other), and the first frame waits for numba to
     load its kernels, so an unanswered frame is followed by another every few seconds.
     """
-    stamp, done = 1_000_000_000, 0
+    stamp, done = NS_PER_S, 0
     deadline = time.monotonic() + FIRST_FRAME_TIMEOUT_S
     while done < count:
         stamp += 100_000_000

@@ -1,9 +1,9 @@
 """`depth-nodes bench structured_light`: decoding one sequence of a structured-light bag,
 the core functions and the node's whole callback path, beside OpenCV's GrayCodePattern.
 
-The methods are those of ``eval-sl`` (tools/evaluation/structured_light.py); times are
-medians over repeated runs after one warm-up run, OpenCV's one run (its per-pixel
-``getProjPixel`` is slow).
+The methods are those ``eval`` scores on a structured-light bag
+(tools/evaluation/structured_light.py); times are medians over repeated runs after one
+warm-up run, OpenCV's one run (its per-pixel ``getProjPixel`` is slow).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 
+from depth_nodes.core.stamps import stamp_parts
 from depth_nodes.core.structured_light import (
     PatternSet,
     ProjectorGeometry,
@@ -160,5 +161,5 @@ def _topic(cb: dict[str, Any], name: str) -> str:
 def header_at(stamp_ns: int, frame_id: str) -> Header:
     """A header with ``frame_id`` stamped ``stamp_ns``."""
     header = Header(frame_id=frame_id)
-    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    header.stamp.sec, header.stamp.nanosec = stamp_parts(stamp_ns)
     return header

@@ -16,6 +16,7 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 
+from depth_nodes.core.stamps import stamp_parts
 from depth_nodes.core.tof import ToFDecoder, ToFParams
 from depth_nodes.errors import BagError
 from depth_nodes.nodes.tof import ToFNode
@@ -85,7 +86,7 @@ def bench_tof(path: str | Path, *, repeats: int = 20, threads: int = 2) -> ToFBe
         decoder.decode(samples, camera, config.frequencies_mhz, params)
         core.append(time.perf_counter() - start)
     header = Header(frame_id=camera.frame_id)
-    header.stamp.sec, header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    header.stamp.sec, header.stamp.nanosec = stamp_parts(stamp)
     node_times = []
     with _node() as node:
         node.set_parameters([Parameter('modulation_frequencies',

@@ -5,7 +5,8 @@ it), ``process`` (run nodes over a bag offline),
 ``pipeline`` (the nodes of a graph live, in one process), ``param`` (a running node's
 parameters), ``play`` / ``record`` (bags into and out of a live graph), ``reindex`` (a
 recording cut off made a complete bag again), ``eval``
-(accuracy against the ground truth in a bag), ``bench`` (speed beside OpenCV),
+(accuracy against the ground truth in a bag, whatever its kind; ``eval-sl``, ``eval-tof``
+and ``eval-depth-filter`` are aliases of it), ``bench`` (speed beside OpenCV),
 ``train-cost`` / ``train-confidence`` (the learned matching cost and confidence). A user error
 prints one line and exits non-zero; never a traceback.
 
@@ -63,13 +64,13 @@ COMMANDS = (
     Command('topic', 'the topics of the running graph (like ros2 topic)', 'topic'),
     Command('diag', "every node's diagnostics, refreshed: rate, processing time, drops by "
             'reason', 'diag'),
-    Command('eval', 'accuracy of a processed bag against its ground truth', 'evaluate'),
-    Command('eval-sl', 'structured-light figures beside OpenCV GrayCodePattern',
-            'evaluate_sl'),
-    Command('eval-tof', "time-of-flight depth against the simulator's ground truth",
-            'evaluate_tof'),
-    Command('eval-depth-filter', "the depth filter against the simulator's ground truth, "
-            "stage by stage beside librealsense's filters", 'evaluate_depth_filter'),
+    Command('eval', 'accuracy of a processed bag against its ground truth, by the scorer '
+            'its kind needs (stereo, structured light, time of flight, depth filter, '
+            'multi-view)', 'evaluate'),
+    Command('eval-sl', 'an alias of eval for structured-light bags', 'evaluate_sl'),
+    Command('eval-tof', 'an alias of eval for time-of-flight bags', 'evaluate_tof'),
+    Command('eval-depth-filter', 'an alias of eval for depth-filter bags',
+            'evaluate_depth_filter'),
     Command('bench', 'speed figures beside OpenCV, measured in one run', 'bench'),
     Command('train-cost', "train the learned matching cost's feature network on simulated "
             'scenes (the train extra)', 'train_cost'),

@@ -1,20 +1,22 @@
-"""`depth-nodes eval-sl`: structured-light figures beside OpenCV GrayCodePattern."""
+"""`depth-nodes eval-sl`: an alias of `eval` for structured-light bags (figures beside OpenCV
+GrayCodePattern)."""
 
 from __future__ import annotations
 
 import argparse
 
-from depth_nodes.tools.evaluation.structured_light import evaluate_structured_light_bag
+from depth_nodes.tools.cli import evaluate
+from depth_nodes.tools.evaluation.kinds import STRUCTURED_LIGHT
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of `eval-sl`."""
-    parser.add_argument('bag', help='a bag written by generate --preset structured_light_vga')
-    parser.add_argument('--no-opencv', action='store_true',
-                        help='skip OpenCV (its per-pixel API is slow)')
+    """The options `eval` takes for a structured-light bag."""
+    parser.description = ('An alias of `depth-nodes eval` for a structured-light bag (a bag '
+                          'written by generate --preset structured_light_vga): eval tells '
+                          'the kind by itself.')
+    evaluate.add_options(parser, STRUCTURED_LIGHT)
 
 
 def run(args: argparse.Namespace) -> int:
     """Print the figures."""
-    print(evaluate_structured_light_bag(args.bag, opencv=not args.no_opencv).format())
-    return 0
+    return evaluate.run_kind(STRUCTURED_LIGHT, args)

@@ -22,9 +22,9 @@ from depth_nodes.tools.bags import depth_filter as depth
 from depth_nodes.tools.bags import multiview as mvs
 from depth_nodes.tools.bags import structured_light as sl
 from depth_nodes.tools.bags import tof
+from depth_nodes.tools.bags.bad_inputs import write_bad_input_bag
 from depth_nodes.tools.bags.generate import PRESETS, write_stereo_bag
 from depth_nodes.tools.cli.options import BUNDLED_BAGS
-from depth_nodes.tools.evaluation.campaign import write_bad_input_bag
 
 C = TypeVar('C')
 

@@ -1,2 +1,2 @@
 """Accuracy: scores against ground truth beside OpenCV (evaluate), previews, the
-structured-light figures and the bad-input campaign."""
+structured-light, time-of-flight, multi-view and depth-filter figures."""

@@ -1,4 +1,4 @@
-"""`depth-nodes eval-depth-filter`: filtered depth against the simulator's exact depth.
+"""`depth-nodes eval` on a depth-filter bag: filtered depth against the exact depth.
 
 Scores of a sequence of depth frames (a depth_* bag: the camera's depth as measured, and
 any filtered version of it: the depth_filter node's output in a processed bag, this

@@ -1,6 +1,6 @@
-"""`depth-nodes eval-depth-filter`: a depth_* bag's frames through this package's depth
-filter and, stage by stage, through librealsense's own filters (pyrealsense2, the
-``realsense`` extra), every version scored against the truth
+"""`depth-nodes eval` on a depth_* bag (or `eval-depth-filter`): its frames through this
+package's depth filter and, stage by stage, through librealsense's own filters
+(pyrealsense2, the ``realsense`` extra), every version scored against the truth
 (:mod:`depth_nodes.tools.evaluation.depth_filter`).
 
 Each stage runs alone with both libraries' defaults for it, on the same frames: decimation

@@ -45,6 +45,7 @@ from depth_nodes.core.opencv_stereo import (
 )
 from depth_nodes.core.rectify import rectify_image
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.core.stamps import stamp_ns
 from depth_nodes.errors import ArgumentError, BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.disparity import read_disparity
@@ -182,7 +183,7 @@ class EvalReport:
 
 
 def _stamp(msg: Any) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+    return stamp_ns(msg)
 
 
 def _load(reader: BagReader, topics: list[str]) -> dict[str, dict[int, Any]]:

@@ -38,7 +38,7 @@ from depth_nodes.core.camera import CameraModel
 from depth_nodes.core.depth_image import to_metres
 from depth_nodes.core.geometry import Intrinsics, Pose, intrinsics
 from depth_nodes.core.mvs.consistency import consistency
-from depth_nodes.core.mvs.cost import camera_matrix
+from depth_nodes.core.stamps import stamp_ns
 from depth_nodes.errors import BagError
 from depth_nodes.ros.camera_info import camera_info_to_model
 from depth_nodes.ros.image import image_to_array
@@ -47,14 +47,16 @@ from depth_nodes.tools.bags.multiview import CONFIG_KEY, STEREO, config_from_met
 from depth_nodes.tools.bags.views import VIEWS_KEY, ViewsInfo, views_info
 
 F32 = NDArray[np.float32]
-#: The issue's targets the scores are read against.
+#: The targets the scores are read against (docs/multiview.md, Accuracy).
 TARGET_MEDIAN, TARGET_WITHIN_2 = 0.01, 0.90
 SIGMA_BAND = (0.60, 0.76)
 
 
 @dataclass
-class DepthScores:
-    """Scores of one depth image against the truth (see the module notes)."""
+class RelativeDepthScores:
+    """Scores of one depth image by its error relative to the true Z (see the module
+    notes); :class:`depth_nodes.core.metrics.DepthScores` holds the absolute errors in
+    metres that the stereo report gives."""
 
     median_rel: float
     within_1: float
@@ -63,7 +65,7 @@ class DepthScores:
     within_sigma: float
 
 
-def score_depth(depth: F32, truth: F32, sigma: F32 | None = None) -> DepthScores:
+def score_depth(depth: F32, truth: F32, sigma: F32 | None = None) -> RelativeDepthScores:
     """Score one depth image (NaN: no depth) against the true Z (NaN: no surface)."""
     has_truth = np.isfinite(truth) & (truth > 0)
     est = has_truth & np.isfinite(depth)
@@ -75,9 +77,9 @@ def score_depth(depth: F32, truth: F32, sigma: F32 | None = None) -> DepthScores
         ok = est & np.isfinite(sigma) & (sigma > 0)
         if ok.any():
             within_sigma = float(np.mean(np.abs(depth[ok] - truth[ok]) <= sigma[ok]))
-    return DepthScores(median, float(np.sum(rel <= 0.01)) / total,
-                       float(np.sum(rel <= 0.02)) / total, float(est.sum()) / total,
-                       within_sigma)
+    return RelativeDepthScores(median, float(np.sum(rel <= 0.01)) / total,
+                               float(np.sum(rel <= 0.02)) / total, float(est.sum()) / total,
+                               within_sigma)
 
 
 @dataclass
@@ -103,17 +105,17 @@ class MultiviewReport:
     bag: str
     motion: str
     skip: int
-    frames: list[tuple[int, DepthScores]] = field(default_factory=list)
+    frames: list[tuple[int, RelativeDepthScores]] = field(default_factory=list)
     stereo: StereoComparison | None = None
 
-    def summary(self) -> DepthScores:
+    def summary(self) -> RelativeDepthScores:
         """The mean of the scores of the frames from ``skip`` on."""
         kept = [s for _, s in self.frames[self.skip:]] or [s for _, s in self.frames]
         if not kept:
-            return DepthScores(*(float('nan'),) * 5)
-        return DepthScores(*(float(np.nanmean([getattr(s, f) for s in kept]))
-                             for f in ('median_rel', 'within_1', 'within_2', 'coverage',
-                                       'within_sigma')))
+            return RelativeDepthScores(*(float('nan'),) * 5)
+        return RelativeDepthScores(*(float(np.nanmean([getattr(s, f) for s in kept]))
+                                     for f in ('median_rel', 'within_1', 'within_2',
+                                               'coverage', 'within_sigma')))
 
     def format(self) -> str:
         """The printed report."""
@@ -155,7 +157,7 @@ def _stamp(msg: Any) -> int:
     """A message's header stamp, ns: outputs are matched to their inputs by it (a node
     with ``delay`` publishes a frame's depth when a later frame arrives, so the bag's
     receive times do not pair them)."""
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+    return stamp_ns(msg)
 
 
 def _depth_of(msg: Any) -> F32:
@@ -324,8 +326,8 @@ def evaluate_views_bag(path: str | Path, *, depth_topic: str = '/views/depth',
     for i, stamp in enumerate(ordered):
         depth, camera, pose = views[stamp]
         neighbours = [views[s] for s in ordered[max(0, i - 1):i + 2] if s != stamp]
-        others = [(d, camera_matrix(c), pose.relative_to(q)) for d, c, q in neighbours]
-        checked, agreed = consistency(depth, camera_matrix(camera), others, max_px=1.0,
+        others = [(d, c.matrix, pose.relative_to(q)) for d, c, q in neighbours]
+        checked, agreed = consistency(depth, camera.matrix, others, max_px=1.0,
                                       max_relative=agree)
         has = np.isfinite(depth)
         seen = has & (checked > 0)  # a neighbour has a depth where the point lands

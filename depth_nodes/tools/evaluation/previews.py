@@ -10,7 +10,6 @@ on the right; pixels without a value are black.
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,7 @@ from depth_nodes.errors import BagError, ConfigError, DepthNodesError
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.ros.image import to_rgb8
 from depth_nodes.ros.transport import image_pixels
-from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.bags.io import BagReader, header_stamp
 
 Array = NDArray[Any]
 DISPARITY = 'stereo_msgs/msg/DisparityImage'
@@ -217,17 +216,6 @@ def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
                 continue
             written += write_views(out, stamp, _left_image(frame, topic), [view])
     return written
-
-
-def header_stamp(cdr: bytes) -> int:
-    """The header stamp (ns) of a serialised message whose first field is a
-    std_msgs/Header (every image, disparity and cloud type): read from the CDR bytes, after
-    the 4-byte encapsulation header whose second byte says the byte order."""
-    order = '<' if len(cdr) > 1 and cdr[1] & 1 else '>'
-    if len(cdr) < 12:
-        raise BagError('a message too short to hold a header stamp')
-    sec, nanosec = struct.unpack_from(f'{order}iI', cdr, 4)
-    return int(sec) * 1_000_000_000 + int(nanosec)
 
 
 def _left_image(frame: dict[str, Any], topic: str) -> Array | None:

@@ -1,5 +1,6 @@
-"""`depth-nodes eval-sl`: accuracy of the structured-light decoder, beside OpenCV's
-GrayCodePattern (`bench structured_light`, in tools/bench, times it).
+"""`depth-nodes eval` on a structured-light bag (or `eval-sl`): accuracy of the
+structured-light decoder, beside OpenCV's GrayCodePattern (`bench structured_light`, in
+tools/bench, times it).
 
 For every sequence of a structured-light bag, each method decodes the same frames:
 

@@ -1,5 +1,5 @@
-"""`depth-nodes eval-tof`: the tof node's output against the simulator's ground truth
-(`bench tof`, in tools/bench, times the node).
+"""`depth-nodes eval` on a time-of-flight bag (or `eval-tof`): the tof node's output
+against the simulator's ground truth (`bench tof`, in tools/bench, times the node).
 
 Scores, per frame of a processed ToF bag (``depth-nodes process bags/tof_vga OUT --config
 config/tof_pipeline.yaml``), of the published depth (only pixels above the confidence
@@ -34,7 +34,7 @@ from depth_nodes.tools.bags.tof import NAMESPACE, read_topics
 
 #: Distance, metres, off both surfaces that makes a mixed pixel's depth a flying pixel.
 FLYING_OFF = 0.05
-#: The targets of the issue the scores are read against.
+#: The targets the scores are read against (docs/nodes.md, tof).
 TARGET_MEDIAN, TARGET_COVERAGE, TARGET_RANGE_FACTOR = 0.01, 0.95, 4.0
 
 F32 = NDArray[np.float32]
@@ -80,7 +80,7 @@ def score_frame(depth: F32, gt: dict[str, NDArray[Any]]) -> ToFScores:
 
 @dataclass
 class ToFReport:
-    """``eval-tof``'s figures for a processed bag."""
+    """The time-of-flight figures of a processed bag (what ``eval`` prints)."""
 
     path: str
     frames: list[ToFScores]

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import signal
-import struct
 import subprocess
 import sys
 import time
@@ -26,10 +25,11 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 
+from depth_nodes.core.stamps import stamp_ns, stamp_parts
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import GraphConfig, NodeSpec, parameters_for
 from depth_nodes.nodes import NODE_PLUGINS
-from depth_nodes.tools.bags.io import BagReader
+from depth_nodes.tools.bags.io import BagReader, header_stamp
 
 #: Seconds a node process gets to exit after SIGINT before it is killed.
 STOP_TIMEOUT_S = 15.0
@@ -169,13 +169,6 @@ def _reliable(depth: int) -> QoSProfile:
     return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
 
 
-def stamp_of(data: bytes) -> int:
-    """Header stamp (ns) of a serialised message whose first field is a std_msgs/Header
-    (Image, CameraInfo, DisparityImage, PointCloud2, ...), read from the CDR bytes."""
-    sec, nanosec = struct.unpack_from('<iI', data, 4)  # after the 4-byte encapsulation
-    return int(sec) * 1_000_000_000 + int(nanosec)
-
-
 StereoFrame = tuple[Image, CameraInfo, Image, CameraInfo]
 
 
@@ -211,7 +204,7 @@ class StereoFeeder:
 
     def _on(self, topic: str) -> Callable[[bytes], None]:
         def on_message(data: bytes) -> None:
-            stamp = stamp_of(data)
+            stamp = header_stamp(data)
             self.arrived[topic][stamp] = time.monotonic()
             if self.keep_data:
                 self.data[topic][stamp] = data
@@ -224,7 +217,7 @@ class StereoFeeder:
 
     def publish(self, frame: StereoFrame, stamp_ns: int) -> None:
         """Publish the four messages of ``frame`` with the stamp ``stamp_ns``."""
-        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        sec, nanosec = stamp_parts(stamp_ns)
         for msg in frame:
             msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
         self.sent[stamp_ns] = time.monotonic()
@@ -262,7 +255,7 @@ def load_stereo_frames(bag: str | Path, namespace: str = '/stereo') -> list[Ster
             reader.require(topic)
         for bag_msg in reader.messages(topics):
             msg = bag_msg.deserialize()
-            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            stamp = stamp_ns(msg)
             by_stamp.setdefault(stamp, {})[bag_msg.topic] = msg
     return [tuple(parts[t] for t in topics)  # type: ignore[misc,unused-ignore]
             for _, parts in sorted(by_stamp.items()) if len(parts) == len(topics)]

@@ -1,24 +1,24 @@
-"""The bad-input campaign: a stereo bag of malformed and hostile messages between good frames.
+"""The bad-input campaign's bag (`depth-nodes generate --preset bad_inputs`): malformed and
+hostile stereo messages between good frames.
 
 Built from the raw frames of a stereo bag (the bundled stereo_vga by default): every case
-is one stamp, 0.5 s after the previous one, of the four raw topics under ``/stereo``
-(left/right image_raw and camera_info), with something wrong in it, and good frames sit
-between the cases. :data:`CASES` says, for each case, which node must drop it first and
-under which reason; the test replays the bag into the stereo graph of separate processes
-and checks exactly that, that no node dies, and that every good frame, and only those,
-comes out as a point cloud.
+of :data:`CASES` is one stamp, 0.5 s after the previous one, of the four raw topics under
+``/stereo`` (left/right image_raw and camera_info), with something wrong in it, and good
+frames sit between the cases. What each case must cause (which node drops it first, under
+which reason) is the test's to judge: test/campaign.py, used by
+test/live/test_bad_input_campaign.py, which replays the bag into the stereo graph.
 """
 
 from __future__ import annotations
 
 import copy
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sensor_msgs.msg import Image
 
+from depth_nodes.core.stamps import NS_PER_S, stamp_parts
 from depth_nodes.errors import ArgumentError
 from depth_nodes.tools.bags.io import BagWriter
 from depth_nodes.tools.live.processes import StereoFrame, load_stereo_frames
@@ -29,7 +29,7 @@ TOPICS = (f'{NS}/left/image_raw', f'{NS}/left/camera_info', f'{NS}/right/image_r
 #: Seconds between two stamps of the campaign (more than a frame takes to go through).
 STEP_S = 0.5
 #: Stamp of the first campaign frame.
-START_NS = 100 * 1_000_000_000
+START_NS = 100 * NS_PER_S
 #: Good frames before START_NS. A player's first messages can reach a subscriber that has
 #: not yet matched the new publisher (DDS matches the two ends one after the other), so the
 #: campaign proper starts once these have gone through.
@@ -47,14 +47,12 @@ class Case:
     Attributes:
         name: What is wrong.
         spoil: Changes the (copied) frame in place.
-        drops: ``{node: {reason: count}}`` that the first node(s) seeing it must count.
         keep: Which of the four messages are written.
         stamp_offset_s: Added to the case's stamp (negative: out of order).
     """
 
     name: str
     spoil: Callable[[StereoFrame], None]
-    drops: dict[str, dict[str, int]]
     keep: Keep = ALL
     stamp_offset_s: float = 0.0
 
@@ -112,29 +110,18 @@ def _nothing(frame: StereoFrame) -> None:
     return None
 
 
-RECTIFY_LEFT, RECTIFY_RIGHT = f'{NS}/left/rectify_left', f'{NS}/right/rectify_right'
-SGM, POINT_CLOUD = f'{NS}/sgm_stereo', f'{NS}/point_cloud'
-
 CASES: tuple[Case, ...] = (
-    Case('unknown encoding', _left_image(_unknown_encoding),
-         {RECTIFY_LEFT: {'unsupported_encoding': 1}}),
-    Case('mono data declared rgb8', _left_image(_mono_as_rgb),
-         {RECTIFY_LEFT: {'malformed_image': 1}}),
-    Case('step and data length disagree', _left_image(_step_disagrees),
-         {RECTIFY_LEFT: {'malformed_image': 1}}),
-    Case('empty data', _left_image(_empty_data), {RECTIFY_LEFT: {'malformed_image': 1}}),
-    Case('huge declared size, 64 bytes of data', _left_image(_huge),
-         {RECTIFY_LEFT: {'size_mismatch': 1}}),
-    Case('zero calibration (K all zero)', _zero_k,
-         {RECTIFY_LEFT: {'uncalibrated': 1}}),
-    Case('NaN in the distortion', _nan_calibration, {RECTIFY_RIGHT: {'bad_calibration': 1}}),
-    Case('left / right size mismatch', _half_size_right, {SGM: {'size_mismatch': 1}}),
-    Case('stamp older than the previous frame', _nothing,
-         {RECTIFY_LEFT: {'stamp_out_of_order': 2}, RECTIFY_RIGHT: {'stamp_out_of_order': 2},
-          SGM: {'stamp_out_of_order': 2}, POINT_CLOUD: {'stamp_out_of_order': 2}},
-         stamp_offset_s=-0.75),
-    Case('unpaired left frame', _nothing, {}, keep=(True, True, False, False)),
-    Case('unpaired right frame', _nothing, {}, keep=(False, False, True, True)),
+    Case('unknown encoding', _left_image(_unknown_encoding)),
+    Case('mono data declared rgb8', _left_image(_mono_as_rgb)),
+    Case('step and data length disagree', _left_image(_step_disagrees)),
+    Case('empty data', _left_image(_empty_data)),
+    Case('huge declared size, 64 bytes of data', _left_image(_huge)),
+    Case('zero calibration (K all zero)', _zero_k),
+    Case('NaN in the distortion', _nan_calibration),
+    Case('left / right size mismatch', _half_size_right),
+    Case('stamp older than the previous frame', _nothing, stamp_offset_s=-0.75),
+    Case('unpaired left frame', _nothing, keep=(True, True, False, False)),
+    Case('unpaired right frame', _nothing, keep=(False, False, True, True)),
 )
 
 
@@ -145,14 +132,6 @@ class Campaign:
     good: list[int]
     cases: list[tuple[int, Case]]
     lead_in: list[int] = field(default_factory=list)
-
-    def expected_drops(self) -> dict[str, Counter[str]]:
-        """Per node, the drops the cases must cause at the first node seeing them."""
-        out: dict[str, Counter[str]] = {}
-        for _, case in self.cases:
-            for node, reasons in case.drops.items():
-                out.setdefault(node, Counter()).update(reasons)
-        return out
 
 
 def write_bad_input_bag(path: str | Path, source: str | Path, *,
@@ -166,11 +145,11 @@ def write_bad_input_bag(path: str | Path, source: str | Path, *,
     if not frames:
         raise ArgumentError(f'{source} has no complete raw stereo frame under {NS}')
     campaign = Campaign([], [])
-    step = round(STEP_S * 1e9)
+    step = round(STEP_S * NS_PER_S)
     stamp = START_NS - LEAD_IN * step
     with BagWriter(path, overwrite=overwrite) as writer:
         def put(frame: StereoFrame, at: int, keep: Keep = ALL) -> None:
-            sec, nanosec = divmod(at, 1_000_000_000)
+            sec, nanosec = stamp_parts(at)
             for topic, msg, wanted in zip(TOPICS, frame, keep, strict=True):
                 if wanted:
                     msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
@@ -186,7 +165,7 @@ def write_bad_input_bag(path: str | Path, source: str | Path, *,
             stamp += step
             frame = copy.deepcopy(frames[index % len(frames)])
             case.spoil(frame)
-            at = stamp + round(case.stamp_offset_s * 1e9)
+            at = stamp + round(case.stamp_offset_s * NS_PER_S)
             put(frame, at, case.keep)
             campaign.cases.append((at, case))
             stamp += step
