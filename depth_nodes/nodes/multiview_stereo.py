@@ -60,7 +60,6 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
-from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from depth_nodes.core.depth_image import depth_to_points
@@ -168,7 +167,7 @@ class MultiViewStereoNode(DepthNode):
             raise ConfigError('pose_source none needs a rig (cameras): one camera without '
                               'poses has no baseline')
         self._warn_renamed(values)
-        self.add_on_set_parameters_callback(self._on_renamed)
+        self.add_post_set_parameters_callback(self._on_renamed)  # once a change is taken
         self.stream = MvsStream(_sweep(values), _stream(values))
         self.pub_depth = self.add_output(Image, 'depth')
         self.pub_info = self.add_output(CameraInfo, 'depth/camera_info')
@@ -212,10 +211,9 @@ class MultiViewStereoNode(DepthNode):
             self.get_logger().warning(f'matching_cost {cost} is deprecated: it is now '
                                       f'{DEPRECATED_COSTS[cost]} (taken as that)')
 
-    def _on_renamed(self, params: list[Any]) -> SetParametersResult:
+    def _on_renamed(self, params: list[Any]) -> None:
         self._warn_renamed({p.name: p.value for p in params
                             if p.name in RENAMED or p.name == 'matching_cost'})
-        return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ inputs
     def on_images(self, *msgs: Any) -> None:

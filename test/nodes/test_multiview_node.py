@@ -257,6 +257,55 @@ def test_the_old_name_of_the_census_cost_is_still_accepted(context: Context) -> 
         node.destroy_node()
 
 
+def test_the_old_name_of_the_temporal_filter_is_still_taken_with_a_warning(
+        context: Context, capfd: pytest.CaptureFixture[str]) -> None:
+    """depth_filter, the temporal filter's name before it met the depth_filter node, still
+    sets it, at start-up and while running, and says the new name each time; the new name
+    alone works without a word."""
+    node = _make(context, depth_filter='none')
+    try:
+        assert node.stream.stream.temporal_filter == 'none'
+        assert 'parameter depth_filter is deprecated: it is now temporal_filter' in \
+            capfd.readouterr().err
+        assert node.set_parameters([Parameter('depth_filter', value='gauss_uniform')])[0] \
+            .successful
+        assert 'depth_filter: gauss_uniform taken as temporal_filter' in capfd.readouterr().err
+        refused = node.set_parameters([Parameter('depth_filter', value='median')])[0]
+        assert not refused.successful
+        assert 'kalman' in refused.reason
+    finally:
+        node.destroy_node()
+    node = _make(context, temporal_filter='gauss_uniform')
+    try:
+        assert node.stream.stream.temporal_filter == 'gauss_uniform'
+        assert 'deprecated' not in capfd.readouterr().err
+    finally:
+        node.destroy_node()
+
+
+def test_a_wild_odometry_pose_is_held_then_dropped_and_the_stream_carries_on(
+        context: Context) -> None:
+    """Poses through the node base's pose input: an odometry message stamped an hour ahead
+    between two frames is one bad_pose, no frame is lost, and nothing starts over."""
+    node = _make(context)
+    jumps = []
+    node.on_time_jump = lambda: jumps.append(1)
+    try:
+        steps = _steps(SMALL)[:4]
+        for k, step in enumerate(steps):
+            _feed(node, step, skip=('pose',))
+            if k == 1:
+                wild = next(copy.deepcopy(m) for t, m in step if t.endswith('odom'))
+                wild.header.stamp.sec += 3600
+                _feed(node, [('/mvs/odom', wild)])
+        assert node.drops['bad_pose'] == 1
+        assert not jumps
+        assert len(_published(node, '/depth')) == len(steps) - node.drops['no_baseline']
+        assert set(node.drops) <= {'bad_pose', 'no_baseline'}
+    finally:
+        node.destroy_node()
+
+
 def test_delayed_depth_comes_with_its_own_stamp_and_flushes_at_the_end(
         context: Context) -> None:
     node = _make(context, delay=2)
