@@ -147,7 +147,7 @@ def test_splat_kernel_equals_reference(footprint: str, inverse: bool) -> None:
                                inverse=inverse)
         np.testing.assert_array_equal(got.depth, want.depth)
         np.testing.assert_array_equal(got.index, want.index)
-        assert got.landed.mean() > 0.05  # a point footprint upsampled leaves gaps
+        assert got.landed.sum() >= 3  # the comparison is not of two empty images
 
 
 @pytest.mark.parametrize('footprint', FOOTPRINTS)
