@@ -60,7 +60,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.core.cross_check import lr_threshold
-from depth_nodes.core.learned.network import WeightsError
+from depth_nodes.core.learned.network import FeatureNet, WeightsError
 from depth_nodes.core.opencv_stereo import BmSettings, SgbmSettings, opencv_bm, opencv_sgbm
 from depth_nodes.core.settings import Rule, problem
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
@@ -186,8 +186,12 @@ def _check_values(values: Mapping[str, Any]) -> str | None:
         params = sgm_params(values)
         try:
             params.validate()
+            if params.learned_weights and params.matching_cost != 'census':
+                FeatureNet.load(params.learned_weights)  # a file it cannot read: refused
         except ValueError as exc:
             return str(exc)
+        except WeightsError as exc:
+            return f'learned_weights: {exc}'
         return None
     if values['disparity_range'] % 16:
         return (f'disparity_range ({values["disparity_range"]}) must be a multiple of 16 '

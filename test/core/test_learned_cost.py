@@ -23,7 +23,12 @@ from depth_nodes.core.learned.network import (
 )
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
 from depth_nodes.core.sgm.cost import cost_inputs
-from depth_nodes.core.sgm.learned_cost import QUANT, learned_costs_from, unit_quantised
+from depth_nodes.core.sgm.learned_cost import (
+    FUSED_CHANNELS,
+    QUANT,
+    learned_costs_from,
+    unit_quantised,
+)
 from depth_nodes.errors import ArgumentError
 from depth_nodes.sim.stereo import StereoSimConfig, simulate_stereo
 
@@ -91,14 +96,22 @@ def test_conv_reference_is_a_correlation_with_zero_padding() -> None:
     assert out.sum() == kernel.sum()
 
 
-def test_opencv_dnn_features_match_the_numpy_network() -> None:
+@pytest.mark.kernels
+def test_the_numba_features_match_the_numpy_network() -> None:
+    """The convolution kernel against the plain network (float32 sums in another order:
+    2e-5), twice with the same buffers, and again at another size."""
     net = _net()
     img = _image(1)
-    dnn = FeatureExtractor(net).features(img)
+    extractor = FeatureExtractor(net)
+    got = extractor.features(img)
     ref = features_reference(net, img)
-    assert dnn.shape == (H, W, 6)
-    np.testing.assert_allclose(dnn, ref, atol=2e-5)
-    np.testing.assert_allclose(np.linalg.norm(dnn, axis=2), 1.0, atol=1e-5)
+    assert got.shape == (H, W, 6)
+    np.testing.assert_allclose(got, ref, atol=2e-5)
+    np.testing.assert_allclose(np.linalg.norm(got, axis=2), 1.0, atol=1e-5)
+    np.testing.assert_array_equal(extractor.features(img), got)
+    small = img[: H // 2, : W // 2]
+    np.testing.assert_allclose(extractor.features(small), features_reference(net, small),
+                               atol=2e-5)
 
 
 @pytest.mark.kernels
@@ -113,10 +126,12 @@ def test_quantised_units_match_reference() -> None:
 
 @pytest.mark.kernels
 @pytest.mark.parametrize('min_disparity', [0, -3, 5])
-def test_learned_cost_rows_match_reference(min_disparity: int) -> None:
+@pytest.mark.parametrize('channels', [5, FUSED_CHANNELS])
+def test_learned_cost_rows_match_reference(min_disparity: int, channels: int) -> None:
+    """The generic kernel (5 features) and the unrolled one (6) against the reference."""
     rng = np.random.default_rng(3)
-    fl = unit_quantised_reference(rng.normal(0, 1, (6, H, W)).astype(np.float32))
-    fr = unit_quantised_reference(rng.normal(0, 1, (6, H, W)).astype(np.float32))
+    fl = unit_quantised_reference(rng.normal(0, 1, (channels, H, W)).astype(np.float32))
+    fr = unit_quantised_reference(rng.normal(0, 1, (channels, H, W)).astype(np.float32))
     n = kernel_size(16, 7)
     costs = learned_costs_from(fl, fr, min_disparity=min_disparity, weight=40)
     out = np.empty((H, W, n), np.uint8)
@@ -129,11 +144,13 @@ def test_learned_cost_rows_match_reference(min_disparity: int) -> None:
     band = np.empty((4, W, n), np.uint8)
     costs.rows(y0, band)
     np.testing.assert_array_equal(band, ref[y0:y0 + 4])
-    # identical features cost 0; opposite ones twice the weight
+    # identical features cost 0 (1 where the quantisation's rounding shortens a vector
+    # by more than 1 %); opposite ones twice the weight
     same = learned_costs_from(fl, fl, min_disparity=0, weight=40)
     row = np.empty((1, W, n), np.uint8)
     same.rows(0, row)
-    assert (row[0, np.arange(n, W), 0] == 0).all()
+    assert (row[0, np.arange(n, W), 0] <= 1).all()
+    assert (row[0, np.arange(n, W), 0] == 0).mean() > 0.8
     opposite = learned_costs_from(fl, -fl, min_disparity=0, weight=40)
     opposite.rows(0, row)
     nonzero = np.abs(fl[0, n:]).sum(axis=1) > 0
@@ -141,14 +158,18 @@ def test_learned_cost_rows_match_reference(min_disparity: int) -> None:
 
 
 @pytest.mark.kernels
-def test_census_plus_learned_is_the_sum_of_both_clipped() -> None:
+@pytest.mark.parametrize('channels', [5, FUSED_CHANNELS])
+def test_census_plus_learned_is_the_sum_of_both_clipped(channels: int) -> None:
+    """Both ways of adding the two: census's rows then the learned pass (5 features), and
+    the fused pass over each pixel's cell (6 features, 16-bit census)."""
     rng = np.random.default_rng(4)
     left, right = _image(5), _image(6)
-    fl = unit_quantised_reference(rng.normal(0, 1, (6, H, W)).astype(np.float32))
-    fr = unit_quantised_reference(rng.normal(0, 1, (6, H, W)).astype(np.float32))
+    fl = unit_quantised_reference(rng.normal(0, 1, (channels, H, W)).astype(np.float32))
+    fr = unit_quantised_reference(rng.normal(0, 1, (channels, H, W)).astype(np.float32))
     n = kernel_size(12, 6)
     census = cost_inputs(left, right, min_disparity=1, disparity_range=n,
                          census_window=(5, 5), intensity_weight=1)
+    assert census.sixteen_bit
     costs = learned_costs_from(fl, fr, min_disparity=1, weight=90, census=census)
     out = np.empty((H, W, n), np.uint8)
     costs.rows(0, out)
@@ -201,9 +222,10 @@ def test_sgm_with_the_learned_cost_finds_the_true_disparity(sim_frame, cost: str
     density, bad1 = _bad(d, f, 1.0)
     _, bad4 = _bad(d, f, 4.0)
     # on a clean pair census alone does better (2.5 % bad-1 here): the learned cost is
-    # for cameras that disagree (the next test; docs/learned.md)
+    # for cameras that disagree (the next test; docs/learned.md). The shipped 6-feature
+    # network alone: 9.9 % bad-1 (the 16-feature one before it: 7.4 %)
     assert density > 0.85
-    assert bad1 < 0.09
+    assert bad1 < 0.11
     assert bad4 < 0.02
 
 
@@ -245,4 +267,4 @@ def test_a_stream_keeps_its_feature_buffers_and_its_results() -> None:
     np.testing.assert_array_equal(fresh.match(left, right).disparity, again)
     # another size: new buffers of that size
     matcher.match(left[:30], right[:30])
-    assert matcher._features[0].shape[:2] == (30, 64)
+    assert matcher._features[0].shape[::2] == (30, 64)  # (H, C, W)

@@ -17,7 +17,7 @@ from depth_nodes.core.learned.network import NORM_FLOOR
 from depth_nodes.core.sgm.aggregate import SENTINEL, SINGLE_PASS, VERTICAL_DIRECTIONS
 from depth_nodes.core.sgm.brightness import matched_brightness
 from depth_nodes.core.sgm.cost import OUT_OF_RANGE_COST
-from depth_nodes.core.sgm.learned_cost import QUANT
+from depth_nodes.core.sgm.learned_cost import QUANT, QUANT2
 from depth_nodes.core.sgm.select import SUBPIXEL_MODES, subpixel_offset
 
 F32 = NDArray[np.float32]
@@ -229,7 +229,7 @@ def unit_quantised_reference(raw: NDArray[np.float32]) -> I16:
     x = np.asarray(raw, np.float32).transpose(1, 2, 0)
     norm = np.sqrt((x * x).sum(axis=2, keepdims=True, dtype=np.float32))
     scale = np.float32(QUANT) / np.maximum(norm, np.float32(NORM_FLOOR))
-    out: I16 = np.clip(np.rint(x * scale), -QUANT, QUANT).astype(np.int16)
+    out: I16 = np.rint(x * scale).astype(np.int16)  # a unit vector: within +-QUANT
     return out
 
 
@@ -240,13 +240,13 @@ def learned_cost_reference(left: I16, right: I16, *, min_disparity: int,
     fl, fr = left.astype(np.int64), right.astype(np.int64)
     h, w = fl.shape[:2]
     out = np.full((h, w, disparity_range), OUT_OF_RANGE_COST, np.uint8)
-    q2 = QUANT * QUANT
     xs = np.arange(w)
     for k in range(disparity_range):
         xr = xs - (min_disparity + k)
         ok = (xr >= 0) & (xr < w)
         dot = (fl[:, xs[ok]] * fr[:, xr[ok]]).sum(axis=2)
-        value = (weight * np.maximum(0, q2 - dot) + q2 // 2) // q2
+        distance = np.maximum(0, QUANT2 - dot)  # about (1 - cosine) * 2^12
+        value = (((distance + 16) >> 5) * weight + 64) >> 7
         out[:, xs[ok], k] = np.minimum(value, 254)
     return out
 

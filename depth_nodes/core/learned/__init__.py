@@ -1,8 +1,7 @@
-"""Learned parts of the stereo graph, run with numpy, OpenCV's dnn module and numba:
+"""Learned parts of the stereo graph, run with numpy, OpenCV and numba:
 
 * ``network.py``: the matching cost's feature network (weights, normalisation, forward
-  pass on OpenCV's dnn; its plain numpy reference is in ``test/reference/learned.py``);
-* ``onnx.py``: that network as an ONNX model, written without the ``onnx`` package;
+  pass in numba; its plain numpy reference is in ``test/reference/learned.py``);
 * ``confidence.py``: the learned confidence over cross_check's per-pixel signals.
 
 The cost volume itself is ``core/sgm/learned_cost.py``; the training is

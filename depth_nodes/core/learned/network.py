@@ -1,5 +1,5 @@
 """The learned matching cost's feature network: its weights, its input normalisation and
-its forward pass on OpenCV's dnn module (no training dependency).
+its forward pass in numba (no training dependency).
 
 The network maps a grey image to one unit vector of ``channels`` features per pixel:
 
@@ -27,9 +27,9 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numba import njit, prange
 from numpy.typing import NDArray
 
-from depth_nodes.core.learned.onnx import feature_model
 from depth_nodes.errors import ArgumentError, ConfigError
 
 F32 = NDArray[np.float32]
@@ -150,9 +150,11 @@ def shipped_features() -> FeatureNet:
     return FeatureNet.load(SHIPPED)
 
 
-def normalise(image: NDArray[Any], window: int) -> F32:
+def normalise(image: NDArray[Any], window: int, out: F32 | None = None,
+              border: int = 0) -> F32:
     """(image - local mean) / sqrt(local variance + :data:`VARIANCE_FLOOR`), over a
-    ``window`` square box (the border replicated), as float32.
+    ``window`` square box (the border replicated), as float32; written into the interior
+    of ``out`` (an (H + 2 border, W + 2 border) float32 array) if given.
 
     Raises:
         ArgumentError: ``image`` is not a 2-D grey image.
@@ -161,15 +163,68 @@ def normalise(image: NDArray[Any], window: int) -> F32:
         raise ArgumentError(f'image {image.shape} must be a grey (H, W) image')
     img = np.asarray(image, np.float32)
     size = (window, window)
-    mean = cv2.boxFilter(img, cv2.CV_32F, size, borderType=cv2.BORDER_REPLICATE)
-    square = cv2.boxFilter(img * img, cv2.CV_32F, size, borderType=cv2.BORDER_REPLICATE)
-    variance = np.maximum(square - mean * mean, 0.0) + np.float32(VARIANCE_FLOOR)
-    return ((img - mean) / np.sqrt(variance)).astype(np.float32)
+    mean = np.asarray(cv2.boxFilter(img, cv2.CV_32F, size, borderType=cv2.BORDER_REPLICATE),
+                      np.float32)
+    square = np.asarray(cv2.boxFilter(img * img, cv2.CV_32F, size,
+                                      borderType=cv2.BORDER_REPLICATE), np.float32)
+    if out is None:
+        out = np.empty(img.shape, np.float32)
+    _normalised(img, mean, square, border, out)
+    return out
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _normalised(img: F32, mean: F32, square: F32, border: int, out: F32) -> None:
+    """The last step of :func:`normalise`, in float32 as numpy would compute it, in one
+    pass (rows in parallel), into ``out``'s interior (``border`` px in from each side)."""
+    h, w = img.shape
+    zero = np.float32(0.0)
+    floor = np.float32(VARIANCE_FLOOR)
+    for y in prange(h):
+        row = out[y + border]
+        for x in range(w):
+            m = mean[y, x]
+            variance = max(square[y, x] - m * m, zero) + floor
+            row[x + border] = (img[y, x] - m) / np.sqrt(variance)
+
+
+@njit(cache=True, nogil=True, parallel=True, fastmath={'contract'})
+def _conv3x3(inp: F32, kernel: F32, bias: F32, relu: bool, out: F32) -> None:
+    """One layer: ``out[co] = bias[co] + sum over ci, dy, dx of kernel[dy, dx, ci, co] *
+    inp[ci, y + dy, x + dx]`` (a correlation), then a ReLU if ``relu``. ``inp`` is (Cin,
+    H + 2, W + 2) with a zero border (the convolution's zero padding), ``out`` (Cout, H + 2,
+    W + 2) gets its interior written (its border stays zero). Rows in parallel, each tap a
+    loop over x (it vectorises; multiply and add contracted into one FMA, so the sums differ
+    from numpy's in the last bits)."""
+    cin, hp, wp = inp.shape
+    cout = kernel.shape[3]
+    h, w = hp - 2, wp - 2
+    zero = np.float32(0.0)
+    for y in prange(h):
+        row = np.empty(w, np.float32)
+        for co in range(cout):
+            for x in range(w):
+                row[x] = bias[co]
+            for ci in range(cin):
+                for dy in range(3):
+                    src = inp[ci, y + dy]
+                    for dx in range(3):
+                        tap = kernel[dy, dx, ci, co]
+                        for x in range(w):
+                            row[x] += tap * src[x + dx]
+            dst = out[co, y + 1]
+            if relu:
+                for x in range(w):
+                    dst[x + 1] = max(row[x], zero)
+            else:
+                for x in range(w):
+                    dst[x + 1] = row[x]
 
 
 class FeatureExtractor:
-    """The network's convolutions on OpenCV's dnn module (an ONNX model written by
-    ``onnx.py``; OpenCV's thread pool), built once for a :class:`FeatureNet`.
+    """The network's convolutions in numba (:func:`_conv3x3`, a layer at a time, rows in
+    parallel), built once for a :class:`FeatureNet`; each layer's map is kept from frame to
+    frame (allocated again only for another image size).
 
     Args:
         net: The weights.
@@ -177,18 +232,37 @@ class FeatureExtractor:
 
     def __init__(self, net: FeatureNet) -> None:
         self.net = net
-        model = feature_model(net.kernels, net.biases)
-        self._dnn = cv2.dnn.readNetFromONNX(np.frombuffer(model, np.uint8))
+        self._maps: list[F32] = []
 
     def raw(self, image: NDArray[Any]) -> F32:
-        """(C, H, W) float32 features of a grey image before the division by their norm.
+        """(C, H, W) float32 features of a grey image before the division by their norm
+        (a view of a buffer the next call writes over).
 
         Raises:
             ArgumentError: ``image`` is not a 2-D grey image.
         """
-        x = normalise(image, self.net.window)
-        self._dnn.setInput(x[None, None])
-        return np.asarray(self._dnn.forward()[0], np.float32)
+        out: F32 = self.padded(image)[:, 1:-1, 1:-1]
+        return out
+
+    def padded(self, image: NDArray[Any]) -> F32:
+        """:meth:`raw` with a border of one zero pixel: (C, H + 2, W + 2), contiguous (what
+        the next kernels read fastest).
+
+        Raises:
+            ArgumentError: ``image`` is not a 2-D grey image.
+        """
+        if image.ndim != 2:
+            raise ArgumentError(f'image {image.shape} must be a grey (H, W) image')
+        h, w = image.shape
+        sizes = [1] + [int(k.shape[3]) for k in self.net.kernels]
+        if not self._maps or self._maps[0].shape[1:] != (h + 2, w + 2):
+            self._maps = [np.zeros((c, h + 2, w + 2), np.float32) for c in sizes]
+        normalise(image, self.net.window, self._maps[0][0], border=1)
+        last = len(self.net.kernels) - 1
+        for i, (kernel, bias) in enumerate(zip(self.net.kernels, self.net.biases,
+                                               strict=True)):
+            _conv3x3(self._maps[i], kernel, bias, i < last, self._maps[i + 1])
+        return self._maps[-1]
 
     def features(self, image: NDArray[Any]) -> F32:
         """(H, W, C) float32 unit feature vectors (a zero vector where every feature is 0).

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from depth_nodes.core.disparity_filters import remove_speckles
-from depth_nodes.core.learned.network import FeatureExtractor, shipped_features
+from depth_nodes.core.learned.network import FeatureExtractor, FeatureNet, shipped_features
 from depth_nodes.core.sgm import ranged
 from depth_nodes.core.sgm.bands import Band, run_tasks
 from depth_nodes.core.sgm.check import check_disparity
@@ -88,6 +88,7 @@ class SgmMatcher:
         self.search_cells = 1.0
         self._kept_total = False
         self._net: FeatureExtractor | None = None
+        self._net_path = ''  # the learned_weights self._net was read from
         # the learned cost's quantised features, kept from frame to frame
         self._features: tuple[NDArray[np.int16], NDArray[np.int16]] | None = None
 
@@ -234,8 +235,11 @@ class SgmMatcher:
         features' or both (the network is read on first use)."""
         if p.matching_cost == 'census':
             return _cost_inputs(left, right, p, census)
-        if self._net is None:
-            self._net = FeatureExtractor(shipped_features())
+        if self._net is None or self._net_path != p.learned_weights:
+            net = FeatureNet.load(p.learned_weights) if p.learned_weights else \
+                shipped_features()
+            self._net, self._net_path = FeatureExtractor(net), p.learned_weights
+            self._features = None
         both = _cost_inputs(left, right, p, census) if p.matching_cost == 'census+learned' \
             else None
         costs = learned_costs(self._net, left, right, min_disparity=p.min_disparity,

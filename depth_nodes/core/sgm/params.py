@@ -52,6 +52,9 @@ class SgmParams:
     learned_weight: int = setting(20, 'cost of two orthogonal learned feature vectors '
                                   '(matching_cost learned or census+learned)', low=1,
                                   high=127)
+    learned_weights: str = setting('', "the learned cost's feature network: an .npz that "
+                                   'depth-nodes train-cost wrote (an adaptation to your '
+                                   'camera, --adapt); empty: the shipped weights')
     census_width: int = setting(5, 'census window width (odd)', low=3, high=9, odd=True)
     census_height: int = setting(5, 'census window height (odd; width x height - 1 <= 63)',
                                  low=3, high=9, odd=True)

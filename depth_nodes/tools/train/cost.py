@@ -43,8 +43,8 @@ class TrainConfig:
         validation: Share of the scenes held out (the last ones) for the validation loss.
     """
 
-    channels: int = 16
-    layers: int = 4
+    channels: int = 6
+    layers: int = 3
     steps: int = 20000
     batch: int = 256
     learning_rate: float = 2e-3
