@@ -128,6 +128,9 @@ class CrossCheckParams:
     confidence_model: str = setting('handmade', 'handmade: the product of the terms above; '
                                     'learned: the shipped network over the same signals '
                                     '(core/learned/confidence.py)', choices=CONFIDENCE_MODELS)
+    confidence_weights: str = setting('', "confidence_model learned: an .npz that "
+                                      'depth-nodes train-confidence wrote; empty: the shipped '
+                                      'weights')
 
     def validate(self) -> CrossCheckParams:
         """Check every field; returns self.
@@ -140,7 +143,8 @@ class CrossCheckParams:
     def arguments(self) -> dict[str, Any]:
         """The keyword arguments of :func:`cross_check` (:func:`cross_check` checks what
         it is given; :meth:`validate` checks the fields as a whole), but the ``model``
-        that ``confidence_model: learned`` stands for, which the caller loads."""
+        that ``confidence_model: learned`` stands for (with ``confidence_weights``), which
+        the caller loads."""
         max_diff = lr_threshold(self.disp12_max_diff)
         return {'disp12_max_diff': max_diff if max_diff > 0 else NO_CHECK,
                 'speckle_size': self.speckle_size, 'speckle_range': self.speckle_range,

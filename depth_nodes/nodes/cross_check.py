@@ -45,7 +45,7 @@ from sensor_msgs.msg import Image
 from stereo_msgs.msg import DisparityImage
 
 from depth_nodes.core.cross_check import CrossCheckParams, cross_check
-from depth_nodes.core.learned.confidence import shipped_confidence
+from depth_nodes.core.learned.confidence import ConfidenceModel, shipped_confidence
 from depth_nodes.core.learned.network import WeightsError
 from depth_nodes.errors import MessageError
 from depth_nodes.ros.disparity import build_disparity, read_disparity
@@ -62,6 +62,17 @@ PARAMETERS = [
     *specs_from(CrossCheckParams, PARAMETER_NAMES),
     THREADS,
 ]
+
+
+def _check_values(values: Mapping[str, Any]) -> str | None:
+    """A ``confidence_weights`` file that cannot be read is refused with the reason."""
+    path = values['confidence_weights']
+    if path and values['confidence_model'] == 'learned':
+        try:
+            ConfidenceModel.load(path)
+        except WeightsError as exc:
+            return f'confidence_weights: {exc}'
+    return None
 
 
 def _disparity(msg: Any, name: str, node: DepthNode) -> Any:
@@ -82,8 +93,9 @@ class CrossCheckNode(DepthNode):
 
     def __init__(self, node_name: str = 'cross_check', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.params = NodeParameters(self, PARAMETERS)
+        self.params = NodeParameters(self, PARAMETERS, check_values=_check_values)
         values = self.params.values
+        self._models: dict[str, ConfidenceModel] = {}
         self.pub_disparity = self.add_output(DisparityImage, 'disparity_checked')
         self.pub_confidence = self.add_output(Image, 'confidence')
         tolerance = values['approximate_sync_tolerance_seconds']
@@ -92,6 +104,16 @@ class CrossCheckNode(DepthNode):
              (Image, 'cost_ratio')],
             self.on_frame, queue_size=values['queue_size'],
             approximate=values['approximate_sync'], max_interval=tolerance or None)
+
+    def _model(self, path: str) -> ConfidenceModel:
+        """The learned confidence of ``confidence_weights`` (read once per path).
+
+        Raises:
+            WeightsError: It cannot be read.
+        """
+        if path not in self._models:
+            self._models[path] = ConfidenceModel.load(path) if path else shipped_confidence()
+        return self._models[path]
 
     def on_frame(self, disparity_msg: DisparityImage, right_msg: DisparityImage,
                  cost_msg: Image) -> None:
@@ -129,7 +151,7 @@ class CrossCheckNode(DepthNode):
         model = None
         if params.confidence_model == 'learned':
             try:
-                model = shipped_confidence()
+                model = self._model(params.confidence_weights)
             except WeightsError as exc:
                 self.drop('no_weights', str(exc))
                 return

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import kernel_size
+from reference.learned import confidence_signals_reference, predict_reference
 
 from depth_nodes.core.cross_check import MISMATCH, VALID, CrossCheckParams, cross_check
 from depth_nodes.core.learned.confidence import (
@@ -75,6 +77,36 @@ def test_signals_of_hand_made_maps() -> None:
     assert np.isfinite(s).all()
     assert s.min() >= 0.0
     assert s.max() <= 1.0
+
+
+@pytest.mark.kernels
+def test_the_signal_kernels_match_the_plain_signals() -> None:
+    """Random maps with NaN, infinite and huge values, every label: the planes the kernels
+    assemble equal numpy's definition (float32 box means taken the same way: 1e-6)."""
+    rng = np.random.default_rng(7)
+    shape = kernel_size((37, 53), (12, 17))
+    raw = rng.uniform(-5, 60, shape).astype(np.float32)
+    raw[rng.random(shape) < 0.2] = np.nan
+    raw[0, :3] = (np.inf, -np.inf, 3e38)
+    ratio = rng.uniform(-0.2, 1.2, shape).astype(np.float32)
+    ratio[rng.random(shape) < 0.1] = np.nan
+    diff = rng.uniform(0, 12, shape).astype(np.float32)
+    diff[rng.random(shape) < 0.2] = np.nan
+    diff[1, :2] = (np.inf, -np.inf)
+    labels = rng.choice([VALID, MISMATCH, 1, 3, 4], shape).astype(np.uint8)
+    filled = rng.random(shape) < 0.1
+    got = confidence_signals(raw, ratio, diff, labels, filled, 1.0)
+    want = confidence_signals_reference(raw, ratio, diff, labels, filled, 1.0)
+    for k, name in enumerate(SIGNALS):
+        np.testing.assert_allclose(got[..., k], want[..., k], atol=1e-6, err_msg=name)
+
+
+@pytest.mark.kernels
+def test_the_network_kernel_matches_the_plain_network() -> None:
+    model = _model(3, hidden=7)
+    shape = (*kernel_size((31, 45), (9, 11)), len(SIGNALS))
+    x = np.random.default_rng(2).random(shape).astype(np.float32)
+    np.testing.assert_allclose(model.predict(x), predict_reference(model, x), atol=1e-6)
 
 
 def test_the_forward_pass_is_the_plain_network() -> None:

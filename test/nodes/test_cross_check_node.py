@@ -28,6 +28,7 @@ from depth_nodes.core.cross_check import (
 )
 from depth_nodes.core.metrics import sparsification_auc
 from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.errors import ConfigError
 from depth_nodes.nodes import cross_check as cross_check_node
 from depth_nodes.nodes.cross_check import CrossCheckNode
 from depth_nodes.ros.disparity import build_disparity, read_disparity
@@ -207,8 +208,6 @@ def test_threads_parameter_applies_from_the_next_frame(node: Any, context: Conte
 
 
 def test_bad_start_up_value_is_an_error(context: Context) -> None:
-    from depth_nodes.errors import ConfigError
-
     with pytest.raises(ConfigError, match='confidence_window=8 rejected: must be odd'):
         CrossCheckNode(context=context, parameter_overrides=[
             Parameter('confidence_window', value=8)])
@@ -343,3 +342,32 @@ def test_unreadable_confidence_weights_are_a_counted_drop(context: Context,
     finally:
         node.destroy_node()
         confidence.shipped_confidence.cache_clear()
+
+
+def test_confidence_weights_read_another_model_and_an_unreadable_file_is_refused(
+        context: Context, tmp_path: Path) -> None:
+    import shutil
+
+    from depth_nodes.core.learned.confidence import SHIPPED, ConfidenceModel
+
+    copy = tmp_path / 'mine.npz'
+    shutil.copy(SHIPPED, copy)
+    learned = Parameter('confidence_model', value='learned')
+    with pytest.raises(ConfigError, match='confidence_weights: cannot read confidence'):
+        CrossCheckNode(context=context, parameter_overrides=[
+            learned, Parameter('confidence_weights', value=str(tmp_path / 'missing.npz'))])
+    node = CrossCheckNode(context=context, parameter_overrides=[
+        learned, Parameter('confidence_weights', value=str(copy))])
+    capture(node)
+    try:
+        node.on_frame(*_inputs())
+        expected = cross_check(MATCH.disparity, MATCH.disparity_right, MATCH.cost_ratio,
+                               model=ConfidenceModel.load(copy))
+        np.testing.assert_array_equal(image_to_array(node.outbox['/confidence']),
+                                      expected.confidence)
+        refused = node.set_parameters([Parameter('confidence_weights',
+                                                 value=str(tmp_path / 'x.npz'))])[0]
+        assert not refused.successful
+        assert 'cannot read confidence' in refused.reason
+    finally:
+        node.destroy_node()

@@ -65,13 +65,17 @@ class CrossCheckBench(NodeBench):
 
     core_ms: float
     core_fill_ms: float
+    learned_ms: float
 
     def format(self) -> str:
         """The printed report."""
-        return '\n'.join(self._lines(
+        lines = self._lines(
             'cross_check', 'speckle_size 100', 'disparity_checked + confidence', [
+            ('node, confidence_model learned', self.learned_ms),
             ('core cross_check only', self.core_ms),
-            ('core cross_check with fill_holes', self.core_fill_ms)]))
+            ('core cross_check with fill_holes', self.core_fill_ms)])
+        lines[2] += f'   learned / hand-made = {self.learned_ms / self.node_ms:5.2f}'
+        return '\n'.join(lines)
 
 
 @dataclass
@@ -93,15 +97,17 @@ class PointCloudBench(NodeBench):
 
 
 @contextlib.contextmanager
-def node_on_bench(node_class: Callable[..., Any]) -> Iterator[tuple[Any, dict[str, Any]]]:
+def node_on_bench(node_class: Callable[..., Any], **parameters: Any
+                  ) -> Iterator[tuple[Any, dict[str, Any]]]:
     """A node on a context of its own, with OpenCV's threads as the caller set them (the
-    node applies its ``threads`` every frame); yields the node and the dict its outputs
-    land in (topic -> last message)."""
+    node applies its ``threads`` every frame) and ``parameters``; yields the node and the
+    dict its outputs land in (topic -> last message)."""
     context = Context()
     rclpy.init(args=[], context=context)
     try:
         node = node_class(context=context, parameter_overrides=[
-            Parameter('threads', value=cv2.getNumThreads())])
+            Parameter('threads', value=cv2.getNumThreads()),
+            *(Parameter(name, value=value) for name, value in parameters.items())])
         out: dict[str, Any] = {}
         node.sink = out.__setitem__
         try:
@@ -129,16 +135,19 @@ def bench_cross_check(repeats: int = 20) -> CrossCheckBench:
     disparity, disparity_right, ratio = (result.disparity.copy(),
                                          result.disparity_right.copy(),
                                          result.cost_ratio.copy())
-    with node_on_bench(CrossCheckNode) as (node, out):
+    with node_on_bench(CrossCheckNode) as (node, out), \
+            node_on_bench(CrossCheckNode, confidence_model='learned') as (learned, _):
         ms = median_ms({
             'node': lambda: node.on_frame(*msgs),
+            'learned': lambda: learned.on_frame(*msgs),
             'core': lambda: cross_check(disparity, disparity_right, ratio),
             'fill': lambda: cross_check(disparity, disparity_right, ratio, fill=True),
             'sgm': lambda: matcher.match(left, right),
         }, repeats, settle=0.05)
     assert set(out) == {'/disparity_checked', '/confidence'}
     return CrossCheckBench(w, h, repeats, node_ms=ms['node'], sgm_ms=ms['sgm'],
-                           core_ms=ms['core'], core_fill_ms=ms['fill'])
+                           core_ms=ms['core'], core_fill_ms=ms['fill'],
+                           learned_ms=ms['learned'])
 
 
 def bench_point_cloud(repeats: int = 20) -> PointCloudBench:

@@ -194,7 +194,7 @@ def _load(reader: BagReader, topics: list[str]) -> dict[str, dict[int, Any]]:
     return by_topic
 
 
-def _rectified_pair(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> tuple[Array, Array]:
+def rectified_pair(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> tuple[Array, Array]:
     left = data.get(f'{ns}/left/image_rect', {}).get(stamp)
     right = data.get(f'{ns}/right/image_rect', {}).get(stamp)
     if left is not None and right is not None:
@@ -366,7 +366,7 @@ def evaluate_bag(
             if est is not None:
                 frame_out[topic] = est
         if baselines:
-            left, right = _rectified_pair(data, ns, stamp)
+            left, right = rectified_pair(data, ns, stamp)
             drange = _baseline_range(data, estimates, stamp, gt)
             defaults = opencv_sgbm(left, right, STEREO_IMAGE_PROC_DEFAULTS,
                                    disparity_range=drange)
@@ -376,7 +376,7 @@ def evaluate_bag(
                 est = opencv_sgbm(left, right, settings, disparity_range=drange)
                 grid_acc[settings.label].add(est, gt, nonocc)
         for cost in matching_costs:
-            left, right = _rectified_pair(data, ns, stamp)
+            left, right = rectified_pair(data, ns, stamp)
             drange = _baseline_range(data, estimates, stamp, gt)
             if cost not in matchers:
                 matchers[cost] = SgmMatcher(SgmParams(matching_cost=cost))
