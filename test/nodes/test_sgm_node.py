@@ -14,7 +14,8 @@ from rclpy.parameter import Parameter
 from ros_helpers import capture, tuner
 
 from depth_nodes.core.opencv_stereo import opencv_sgbm
-from depth_nodes.core.sgm import SgmMatcher
+from depth_nodes.core.sgm import SgmMatcher, SgmParams
+from depth_nodes.errors import ConfigError
 from depth_nodes.nodes import sgm_stereo
 from depth_nodes.nodes.sgm_stereo import SgmStereoNode, opencv_settings, sgm_params
 from depth_nodes.ros.camera_info import model_to_camera_info
@@ -527,3 +528,39 @@ def test_unreadable_learned_weights_are_a_counted_drop(context: Context,
     finally:
         node.destroy_node()
         network.shipped_features.cache_clear()
+
+
+def test_learned_weights_read_another_network_and_an_unreadable_file_is_refused(
+        context: Context, tmp_path: Any) -> None:
+    """learned_weights: a file train-cost wrote (here the shipped one, copied) gives the
+    same disparity as the shipped weights; a file it cannot read is refused at start-up
+    and when set, with the reason, and the node keeps its weights."""
+    import shutil
+
+    from depth_nodes.core.learned.network import SHIPPED
+
+    copy = tmp_path / 'mine.npz'
+    shutil.copy(SHIPPED, copy)
+    (tmp_path / 'broken.npz').write_bytes(b'not an npz')
+    common = [Parameter('disparity_range', value=48),
+              Parameter('matching_cost', value='census+learned')]
+    with pytest.raises(ConfigError, match='learned_weights: cannot read feature weights'):
+        SgmStereoNode(context=context, parameter_overrides=[
+            *common, Parameter('learned_weights', value=str(tmp_path / 'missing.npz'))])
+    node = SgmStereoNode(context=context, parameter_overrides=[
+        *common, Parameter('learned_weights', value=str(copy))])
+    capture(node)
+    try:
+        node.on_frame(*_inputs())
+        expected = SgmMatcher(SgmParams(disparity_range=48, matching_cost='census+learned',
+                                        learned_weights=str(copy))).match(
+            FRAME.left_rect_gt, FRAME.right_rect_gt)
+        np.testing.assert_array_equal(read_disparity(node.outbox['/disparity']).disparity,
+                                      expected.disparity)
+        refused = node.set_parameters([Parameter('learned_weights',
+                                                 value=str(tmp_path / 'broken.npz'))])[0]
+        assert not refused.successful
+        assert 'cannot read feature weights' in refused.reason
+        assert node.params.values['learned_weights'] == str(copy)
+    finally:
+        node.destroy_node()

@@ -4,16 +4,20 @@ nodes run, short reproducible training runs, and the commands' errors."""
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import REPO, run_cli
 from reference.learned import features_reference
 
 from depth_nodes.core.learned.confidence import ConfidenceModel
-from depth_nodes.core.learned.network import FeatureNet, normalise
+from depth_nodes.core.learned.network import SHIPPED, FeatureNet, normalise
 from depth_nodes.tools.train.confidence import ConfidenceConfig, train_confidence
 from depth_nodes.tools.train.cost import TrainConfig, forward, init_params, load_jax, train
 from depth_nodes.tools.train.data import DataConfig, augment, split, triplets
@@ -126,3 +130,75 @@ def test_training_commands_refuse_bad_arguments(tmp_path: Path) -> None:
         assert result.returncode == 1, (args, result.stderr)
         assert message in result.stderr, result.stderr
         assert 'Traceback' not in result.stderr
+
+
+@pytest.mark.slow
+def test_adapting_to_a_recording_keeps_its_labels_and_says_what_it_learned_from(
+        tmp_path: Path) -> None:
+    """``train-cost --adapt`` on a stereo bag (raw images rectified here): proxy labels at
+    most pixels of a clean simulated pair, weights that load and record the bag, and
+    they stay near the shipped ones (the pull back to them)."""
+    out = tmp_path / 'mine.npz'
+    bag = REPO / 'bags' / 'stereo_qvga_color'
+    result = run_cli(['train-cost', '--adapt', str(bag), '--out', str(out), '--steps', '40',
+                      '--frames', '2', '--disparities', '48'])
+    assert result.returncode == 0, result.stderr
+    assert 'proxy labels' in result.stdout
+    labelled = [float(line.split(': ')[1].split('%')[0]) for line in result.stdout.splitlines()
+                if 'of the pixels labelled' in line]
+    assert len(labelled) == 2
+    assert min(labelled) > 30  # a clean pair: most pixels are consistent and distinctive
+    net = FeatureNet.load(out)
+    assert net.recipe['command'] == 'depth-nodes train-cost --adapt'
+    assert all(s.startswith('stereo_qvga_color@') for s in net.recipe['adapted_on'])
+    assert net.recipe['base']['command'] == 'depth-nodes train-cost'
+    shipped = FeatureNet.load(SHIPPED)
+    for a, b in zip(net.kernels, shipped.kernels, strict=True):
+        assert a.shape == b.shape
+        assert np.abs(a - b).max() < 0.5
+
+
+@pytest.mark.slow
+def test_adapting_refuses_what_it_cannot_use(tmp_path: Path) -> None:
+    out = str(tmp_path / 'w.npz')
+    cases = [
+        (['train-cost', '--adapt', str(REPO / 'bags' / 'tof_vga'), '--out', out],
+         'no stereo pair'),
+        (['train-cost', '--adapt', str(tmp_path / 'nothing'), '--out', out], 'nothing'),
+        (['train-cost', out, '--adapt', str(REPO / 'bags' / 'stereo_vga'), '--out', out],
+         'give the weights file to write once'),
+        (['train-cost', '--adapt', str(REPO / 'bags' / 'stereo_vga'), '--out', out,
+          '--weights', str(tmp_path / 'base.npz')], 'cannot read feature weights'),
+        (['train-cost', '--adapt', str(REPO / 'bags' / 'stereo_vga'), '--out', out,
+          '--frames', '0'], '--frames must be at least 1'),
+    ]
+    for args, message in cases:
+        result = run_cli(args)
+        assert result.returncode == 1, (args, result.stderr)
+        assert message in result.stderr, (args, result.stderr)
+        assert 'Traceback' not in result.stderr
+
+
+@pytest.mark.slow
+def test_a_ctrl_c_keeps_the_best_adapted_weights(tmp_path: Path) -> None:
+    out = tmp_path / 'mine.npz'
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'depth_nodes.tools.cli', 'train-cost', '--adapt',
+         str(REPO / 'bags' / 'stereo_qvga_color'), '--out', str(out), '--steps', '100000',
+         '--frames', '1', '--disparities', '48'], cwd=REPO, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+        assert out.exists(), proc.stderr.read() if proc.stderr else ''
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    assert 'depth-nodes train-cost: interrupted;' in stderr
+    assert 'holds the best weights so far' in stderr, stdout
+    assert FeatureNet.load(out).recipe['command'] == 'depth-nodes train-cost --adapt'
+    assert not list(tmp_path.glob('*.partial.npz'))

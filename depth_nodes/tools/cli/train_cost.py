@@ -1,24 +1,28 @@
 """`depth-nodes train-cost`: train the learned matching cost's feature network on the
-simulator's scenes (needs the ``train`` extra: JAX)."""
+simulator's scenes, or (``--adapt BAG ...``) adapt it to a user's own recordings without
+ground truth (needs the ``train`` extra: JAX)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from depth_nodes.core.learned.network import SHIPPED
+from depth_nodes.core.learned.network import SHIPPED, FeatureNet
 from depth_nodes.errors import ArgumentError
+from depth_nodes.tools import signals
+from depth_nodes.tools.train.adapt import AdaptConfig, adapt, write_atomically
 from depth_nodes.tools.train.cost import TrainConfig, train
 from depth_nodes.tools.train.data import DataConfig
 
-_DATA, _TRAIN = DataConfig(), TrainConfig()
+_DATA, _TRAIN, _ADAPT = DataConfig(), TrainConfig(), AdaptConfig()
 
 
 def add_common_arguments(parser: argparse.ArgumentParser, *, seed: int, scenes: int,
                          photo_scenes: int) -> None:
     """The options both training commands take: OUT, the seed, the scenes, the cache
     (with that command's defaults)."""
-    parser.add_argument('out', help='weights file to write (.npz)')
+    parser.add_argument('out', nargs='?', help='weights file to write (.npz)')
     parser.add_argument('--seed', type=int, default=seed,
                         help=f'seed of the scenes, augmentation, sampling and initial '
                         f'weights (default {seed})')
@@ -44,13 +48,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         'the same weights on the same machine. Needs JAX: pip install '
         "'depth_nodes[train]'.")
     parser.epilog = (f'The shipped weights ({SHIPPED.name}) were made by the defaults: '
-                     'depth-nodes train-cost OUT.npz')
+                     'depth-nodes train-cost OUT.npz. Adapting to your camera: '
+                     'depth-nodes train-cost --adapt BAG [BAG ...] --out WEIGHTS.npz, then '
+                     "sgm_stereo's learned_weights: WEIGHTS.npz (docs/learned.md)")
     add_common_arguments(parser, seed=_DATA.seed, scenes=_DATA.scenes,
                          photo_scenes=_DATA.photo_scenes)
+    parser.add_argument('--adapt', nargs='+', metavar='BAG',
+                        help='adapt the network to the stereo pairs of these bags (your '
+                        'camera\'s recordings; no ground truth needed) instead of training it '
+                        'on the simulator: proxy labels where the matcher is left-right '
+                        'consistent, distinctive and photometrically consistent')
+    parser.add_argument('--out', dest='out_option', metavar='OUT',
+                        help='weights file to write (.npz), the same as OUT')
+    parser.add_argument('--weights', default='', metavar='FILE',
+                        help='--adapt: the weights to start from (default: the shipped ones)')
+    parser.add_argument('--frames', type=int, default=_ADAPT.frames,
+                        help=f'--adapt: pairs read from each bag, spread over it (default '
+                        f'{_ADAPT.frames})')
+    parser.add_argument('--disparities', type=int, default=_ADAPT.disparity_range,
+                        help=f'--adapt: disparities the proxy matcher searches (default '
+                        f'{_ADAPT.disparity_range})')
     parser.add_argument('--samples', type=int, default=_DATA.samples_per_scene,
                         help=f'patch triplets per scene (default {_DATA.samples_per_scene})')
-    parser.add_argument('--steps', type=int, default=_TRAIN.steps,
-                        help=f'optimiser steps (default {_TRAIN.steps})')
+    parser.add_argument('--steps', type=int, default=None,
+                        help=f'optimiser steps (default {_TRAIN.steps}; --adapt: '
+                        f'{_ADAPT.steps})')
     parser.add_argument('--batch', type=int, default=_TRAIN.batch,
                         help=f'triplets per step (default {_TRAIN.batch})')
     parser.add_argument('--channels', type=int, default=_TRAIN.channels,
@@ -113,8 +135,16 @@ def cache_folder(text: str | None) -> Path | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Train; write the weights; print the curves as they come."""
+    """Train (or adapt); write the weights; print the curves as they come."""
+    chosen = [a for a in (args.out, getattr(args, 'out_option', None)) if a]
+    if len(chosen) != 1:
+        raise ArgumentError('give the weights file to write once: OUT or --out OUT')
+    args.out = chosen[0]
     out = weights_path(args.out, args.force)
+    if getattr(args, 'adapt', None):
+        args.steps = _ADAPT.steps if args.steps is None else args.steps
+        return _adapt(args, out)
+    args.steps = _TRAIN.steps if args.steps is None else args.steps
     check_counts(args, ('samples', 'steps', 'batch', 'channels', 'layers', 'log_every'))
     data = DataConfig(scenes=args.scenes, photo_scenes=args.photo_scenes, seed=args.seed,
                       samples_per_scene=args.samples, radius=args.layers)
@@ -126,3 +156,47 @@ def run(args: argparse.Namespace) -> int:
     print(f'wrote {out} ({out.stat().st_size / 1024:.0f} KB, {result.net.channels} features, '
           f'{len(result.net.kernels)} layers) in {result.seconds:.0f} s')
     return 0
+
+
+def _adapt(args: argparse.Namespace, out: Path) -> int:
+    """``--adapt``: fine-tune on the bags' proxy labels; the best network so far is on
+    the disk at every moment, so a Ctrl-C keeps it."""
+    check_counts_adapt(args)
+    if args.weights:
+        FeatureNet.load(args.weights)  # a file it cannot read: one line, before any work
+    config = AdaptConfig(frames=args.frames, disparity_range=args.disparities,
+                         steps=args.steps, seed=args.seed)
+    saved: list[int] = []
+
+    def checkpoint(net: FeatureNet) -> None:
+        write_atomically(net, out)
+        saved.append(1)
+
+    with signals.graceful():
+        result = adapt(args.adapt, config, weights=args.weights,
+                       log=lambda line: print(line, flush=True), checkpoint=checkpoint,
+                       stop=signals.stop_requested)
+        if signals.stop_requested():
+            if saved:
+                print(f'depth-nodes train-cost: interrupted; {out} holds the best weights '
+                      f'so far (step {result.best_step})', file=sys.stderr)
+            else:
+                print('depth-nodes train-cost: interrupted before any weights were kept; '
+                      'nothing written', file=sys.stderr)
+            return 0
+    write_atomically(result.net, out)
+    print(f'wrote {out} ({out.stat().st_size / 1024:.0f} KB), adapted on {result.pairs} '
+          f'pair(s), {result.labels} proxy labels, best at step {result.best_step}, in '
+          f'{result.seconds:.0f} s')
+    return 0
+
+
+def check_counts_adapt(args: argparse.Namespace) -> None:
+    """The counts of ``--adapt``.
+
+    Raises:
+        ArgumentError: Naming the option.
+    """
+    for name in ('frames', 'steps', 'disparities'):
+        if getattr(args, name) < 1:
+            raise ArgumentError(f'--{name} must be at least 1')

@@ -163,7 +163,6 @@ def train(data: DataConfig, config: TrainConfig, *, cache: Path | None = None,
         ConfigError: JAX is missing.
     """
     jax = load_jax()
-    jnp = jax.numpy
     if data.radius != config.layers:
         data = DataConfig(**{**asdict(data), 'radius': config.layers})
     start = time.monotonic()
@@ -172,23 +171,56 @@ def train(data: DataConfig, config: TrainConfig, *, cache: Path | None = None,
         f'pairs ({len(held)} held out for validation)')
     train_set = training_set(data, train_scenes, cache=cache)
     val_set = training_set(data, held, cache=cache)
-    n = train_set[0].shape[0]
-    log(f'{n} training triplets, {val_set[0].shape[0]} validation, '
+    log(f'{train_set[0].shape[0]} training triplets, {val_set[0].shape[0]} validation, '
         f'{time.monotonic() - start:.0f} s')
-    params = [(jnp.asarray(k), jnp.asarray(b)) for k, b in init_params(config, data.seed)]
+    result = optimise(jax, init_params(config, data.seed), train_set, val_set, config,
+                      seed=data.seed, window=data.window, log=log, log_every=log_every,
+                      start=start)
+    recipe = {'command': 'depth-nodes train-cost', 'data': asdict(data),
+              'train': asdict(config), 'seconds': round(result.seconds, 1),
+              'validation_loss': result.validation_loss[-1] if result.validation_loss
+              else None,
+              'validation_ranked': result.validation_ranked[-1] if result.validation_ranked
+              else None,
+              'jax': jax.__version__}
+    result.net = FeatureNet(result.net.kernels, result.net.biases, data.window, recipe)
+    return result
+
+
+def optimise(jax: Any, initial: list[tuple[F32, F32]], train_set: tuple[F32, F32, F32],
+             val_set: tuple[F32, F32, F32], config: TrainConfig, *, seed: int, window: int,
+             log: Callable[[str], None], log_every: int, start: float,
+             anchor: float = 0.0,
+             checkpoint: Callable[[FeatureNet, int, float], None] | None = None,
+             stop: Callable[[], bool] = lambda: False) -> TrainResult:
+    """Adam on the hinge loss from ``initial`` (kernel, bias) layers; every ``log_every``
+    steps the losses are logged and ``checkpoint`` gets the network so far, the step and
+    the validation loss. ``anchor`` adds ``anchor * sum((w - w_initial)^2)`` to the loss:
+    a fine-tuning that stays near the weights it started from. ``stop`` ends the loop
+    early (a Ctrl-C) after the step it is seen true."""
+    jnp = jax.numpy
+    params = [(jnp.asarray(k), jnp.asarray(b)) for k, b in initial]
+    origin = [(jnp.asarray(k), jnp.asarray(b)) for k, b in initial]
     means, variances = adam_state(jax, params)
 
     def loss_only(p: Any, left: Any, pos: Any, neg: Any) -> Any:
-        return hinge_loss(jax, p, left, pos, neg, config.margin)[0]
+        loss = hinge_loss(jax, p, left, pos, neg, config.margin)[0]
+        if anchor:
+            loss = loss + anchor * sum(((k - k0) ** 2).sum() + ((b - b0) ** 2).sum()
+                                       for (k, b), (k0, b0) in zip(p, origin, strict=True))
+        return loss
 
     step = adam_step(jax, loss_only)
     evaluate = jax.jit(lambda p, a, b, c: hinge_loss(jax, p, a, b, c, config.margin))
-    rng = np.random.default_rng([data.seed, 4])
+    rng = np.random.default_rng([seed, 4])
+    n = train_set[0].shape[0]
     order = rng.permutation(n)
     cursor = 0
     steps, train_loss, val_loss, val_ranked = [], [], [], []
     running = []
     for t in range(1, config.steps + 1):
+        if stop():
+            break
         if cursor + config.batch > n:
             order, cursor = rng.permutation(n), 0
         idx = order[cursor:cursor + config.batch]
@@ -206,15 +238,16 @@ def train(data: DataConfig, config: TrainConfig, *, cache: Path | None = None,
             running = []
             log(f'step {t}: train loss {train_loss[-1]:.4f}, validation loss {vl:.4f}, '
                 f'ranked right {100 * vr:.2f} %, {time.monotonic() - start:.0f} s')
-    seconds = time.monotonic() - start
-    recipe = {'command': 'depth-nodes train-cost', 'data': asdict(data),
-              'train': asdict(config), 'seconds': round(seconds, 1),
-              'validation_loss': val_loss[-1] if val_loss else None,
-              'validation_ranked': val_ranked[-1] if val_ranked else None,
-              'jax': jax.__version__}
-    net = FeatureNet(tuple(np.asarray(k, np.float32) for k, _ in params),
-                     tuple(np.asarray(b, np.float32) for _, b in params), data.window, recipe)
-    return TrainResult(net, steps, train_loss, val_loss, val_ranked, seconds)
+            if checkpoint is not None:
+                checkpoint(_net(params, window), t, vl)
+    return TrainResult(_net(params, window), steps, train_loss, val_loss, val_ranked,
+                       time.monotonic() - start)
+
+
+def _net(params: Any, window: int) -> FeatureNet:
+    """The layers as a FeatureNet (its recipe filled in by the caller)."""
+    return FeatureNet(tuple(np.asarray(k, np.float32) for k, _ in params),
+                      tuple(np.asarray(b, np.float32) for _, b in params), window, {})
 
 
 def _batched(evaluate: Any, params: Any, sets: tuple[F32, F32, F32],

@@ -132,21 +132,38 @@ def triplets(scene: Scene, config: DataConfig,
     float32 normalised like the network's input (fewer than ``samples_per_scene`` when
     the scene has few usable pixels)."""
     left, right = augment(scene, rng)
+    return sample_triplets(left, right, scene.disparity, scene.visible, config, rng)
+
+
+def sample_triplets(left: NDArray[np.generic], right: NDArray[np.generic],
+                    disparity: NDArray[np.floating], usable: NDArray[np.bool_],
+                    config: DataConfig, rng: np.random.Generator,
+                    hard: NDArray[np.floating] | None = None,
+                    hard_fraction: float = 0.0) -> tuple[F32, F32, F32]:
+    """(left, positive, negative) patch stacks of a grey pair, at ``usable`` pixels whose
+    match is ``disparity`` (the truth, or a proxy label): the left patch, the right patch
+    at the match (interpolated: it may be sub-pixel) and one a few pixels off it (near)
+    or many (far); each (N, P, P) float32 normalised like the network's input, at most
+    ``samples_per_scene``. With ``hard`` (a disparity per pixel, NaN: none), that share
+    ``hard_fraction`` of the negatives is taken there instead: a wrong match the current
+    network prefers."""
     nl, nr = normalise(left, config.window), normalise(right, config.window)
     h, w = nl.shape
     r = config.radius
-    ys, xs = np.nonzero(scene.visible)
-    d = scene.disparity[ys, xs].astype(np.float64)
+    ys, xs = np.nonzero(usable)
+    d = disparity[ys, xs].astype(np.float64)
     xr = xs - d
     inside = (ys >= r) & (ys < h - r) & (xs >= r) & (xs < w - r) & (xr >= r) & \
         (xr <= w - 1 - r)
     ys, xs, xr = ys[inside], xs[inside], xr[inside]
+    hard_x = None if hard is None else xs - hard[ys, xs].astype(np.float64)
     if ys.size == 0:
         empty = np.zeros((0, 2 * r + 1, 2 * r + 1), np.float32)
         shape = (0, 2 * config.candidates, 2 * r + 1, 2 * r + 1)
         return empty, empty, np.zeros(shape, np.float32) if config.candidates else empty
     pick = rng.choice(ys.size, size=min(config.samples_per_scene, ys.size), replace=False)
     ys, xs, xr = ys[pick], xs[pick], xr[pick]
+    hard_x = None if hard_x is None else hard_x[pick]
     n = ys.size
     far = rng.random(n) < config.far_fraction
     lo = np.where(far, config.far[0], config.near[0])
@@ -157,6 +174,10 @@ def triplets(scene: Scene, config: DataConfig,
     outside = (xn < r) | (xn > w - 1 - r)
     xn = np.where(outside, xr - offset, xn)
     xn = np.clip(xn, r, w - 1 - r)
+    if hard_x is not None:
+        use = (rng.random(n) < hard_fraction) & np.isfinite(hard_x) & (hard_x >= r) & \
+            (hard_x <= w - 1 - r)
+        xn = np.where(use, hard_x, xn)
     if config.candidates:
         # every whole offset +-1 .. +-candidates from the true match, clipped to the image
         offsets = np.concatenate([-np.arange(config.candidates, 0, -1),
