@@ -14,7 +14,7 @@ penalties weigh less against it). A scene is one pair with its
 three variants; leaving a scene out, the setting with the lowest geometric mean of
 (bad-2 / census's bad-2) over the other scenes' variants is chosen and scored on the scene
 left out. Prints the table of ratios, the leave-one-out rows and the choice on all scenes.
-About five minutes on two cores.
+Half a minute on two cores.
 """
 
 from __future__ import annotations
