@@ -16,6 +16,7 @@ from rclpy.qos import QoSProfile
 from std_msgs.msg import Header
 
 from depth_nodes.ros.accounting import Accounting
+from depth_nodes.ros.serialized import Serialized
 
 #: Publishers keep this many messages by default (reliable, volatile).
 PUBLISHER_DEPTH = 10
@@ -77,18 +78,19 @@ class Output:
         return self._node.accounting.published[self.topic]
 
     def publish(self, msg: Any) -> None:
-        """Publish ``msg`` (or hand it to the harness sink); callable from any thread. With
+        """Publish ``msg`` (or hand it to the harness sink); callable from any thread.
+        ``msg`` may be a :class:`~depth_nodes.ros.serialized.Serialized` message. With
         the node's ``frame_id`` parameter set, the message's header (and a DisparityImage's
         image header) get that frame, on a copy: the input's header is left alone."""
         if self._node.stopping:  # the run is over: nothing can be sent any more
             return
         frame = self._node.frame_override
-        if frame:
+        if frame and not isinstance(msg, Serialized):  # bytes carry the node's own frame
             set_frame(msg, frame)
         self._node.accounting.count_output(self.topic)
         sink = self._node.sink
         if sink is None:
-            self._publisher.publish(msg)
+            self._publisher.publish(msg.data if isinstance(msg, Serialized) else msg)
         else:
             sink(self.topic, msg)
 

@@ -14,6 +14,7 @@ import sys
 from typing import Any, TextIO
 
 from depth_nodes.errors import BagError
+from depth_nodes.ros.serialized import Serialized
 from depth_nodes.tools.bags.io import BagMessage, BagReader, BagWriter, message_type_name
 from depth_nodes.tools.bags.report import ProcessReport, Progress
 from depth_nodes.tools.signals import stop_requested
@@ -60,7 +61,10 @@ class Sink:
         except BagError as exc:
             self.error = exc
             return
-        for spec_in in self.routes.get(topic, ()):
+        subscribers = self.routes.get(topic, ())
+        if subscribers and isinstance(msg, Serialized):
+            msg = msg.message()
+        for spec_in in subscribers:
             spec_in.callback(msg)
 
     def check(self) -> None:
@@ -124,7 +128,10 @@ class _BagSink(Sink):
         self.stamp = 0
 
     def handle(self, topic: str, msg: Any) -> None:
-        self.writer.write(topic, msg, self.stamp)
+        if isinstance(msg, Serialized):
+            self.writer.write(topic, msg.data, self.stamp, msgtype=msg.msgtype)
+        else:
+            self.writer.write(topic, msg, self.stamp)
         self.report.published[topic] += 1
 
 

@@ -20,6 +20,7 @@ from rclpy.impl.logging_severity import LoggingSeverity
 from depth_nodes.errors import BagError
 from depth_nodes.graph.description import GraphConfig, create_nodes
 from depth_nodes.ros.dds import PROFILE, PROFILE_VARIABLES
+from depth_nodes.ros.serialized import Serialized
 from depth_nodes.tools.bags.harness import Routes, Sink, drop_counts, feed, routes_of
 from depth_nodes.tools.bags.io import BagReader, message_type_name, serialize
 
@@ -152,8 +153,11 @@ class _SegmentSink(Sink):
     def handle(self, topic: str, msg: Any) -> None:
         if not self.keep:
             return
-        msgtype = message_type_name(msg)
-        data = serialize(msg, msgtype)
+        if isinstance(msg, Serialized):
+            msgtype, data = msg.msgtype, msg.data
+        else:
+            msgtype = message_type_name(msg)
+            data = serialize(msg, msgtype)
         kept: bytes | tuple[int, int] = data
         if self.spill is not None:
             try:
