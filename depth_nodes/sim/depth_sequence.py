@@ -7,7 +7,22 @@ Kinds (:data:`KINDS`):
 * ``moving_camera``: the camera slides sideways ``step_m`` per frame and turns
   ``turn_deg`` per frame about its vertical axis, in a scene that does not move;
 * ``moving_object``: a camera that does not move, the scene's objects moving a few cm per
-  frame (:func:`~depth_nodes.sim.layout.build_scene`).
+  frame (:func:`~depth_nodes.sim.layout.build_scene`);
+* ``orbit``: the static scene, the camera on a horizontal arc around a point in the middle
+  of it (:data:`~depth_nodes.sim.sequence.ORBIT_CENTRE`), always looking at it, sweeping
+  ``orbit_deg`` from the first frame to the last (the middle frame is the static camera);
+* ``object_leaves``: the static camera and scene, plus a box (label ``leaving``) in front
+  of the background for the first ``n_frames // 2`` frames, gone afterwards;
+* ``long``: a closed room (:data:`ROOM_HALF_M`: 9 - 10 m across) of cabinets, boxes,
+  spheres and pillars, deterministic from the seed, and a camera that drives ``step_m``
+  per frame round a circle of :data:`LONG_RADIUS_M` inside it, looking ahead,
+  :data:`LONG_INWARD_DEG` inwards and :data:`LONG_PITCH_DEG` down (0.46 degrees a frame
+  at 2 cm): hundreds of frames, every pixel on a surface, objects coming into view and
+  going again.
+
+The scene of every frame is :func:`scene_at`, the camera's pose :func:`pose_at`: an
+evaluator rebuilds the exact truth (depth, or the distance of any point to the surface:
+:meth:`~depth_nodes.sim.scene.Scene.distance`) from the configuration alone.
 
 Every frame is measured the way depth cameras fail:
 
@@ -39,16 +54,19 @@ from numpy.typing import NDArray
 
 from depth_nodes.core.geometry import Intrinsics, Pose
 from depth_nodes.core.stamps import NS_PER_S
-from depth_nodes.errors import ConfigError
-from depth_nodes.sim.layout import build_scene
-from depth_nodes.sim.sequence import pixel_rays
+from depth_nodes.errors import ArgumentError, ConfigError
+from depth_nodes.sim import texture as tx
+from depth_nodes.sim.layout import build_scene, rotation
+from depth_nodes.sim.scene import Box, Cylinder, Material, Primitive, Scene, Sphere
+from depth_nodes.sim.sequence import ORBIT_CENTRE, look_at, pixel_rays
 
 __all__ = ['HOLE', 'KINDS', 'MIXED', 'MOVING', 'STRADDLING', 'DepthFrame',
-           'DepthSequenceConfig', 'labels', 'simulate_depth_sequence']
+           'DepthSequenceConfig', 'labels', 'pose_at', 'scene_at', 'simulate_depth_sequence',
+           'stamp_at']
 
 F32 = NDArray[np.float32]
 B = NDArray[np.bool_]
-KINDS = ('static', 'moving_camera', 'moving_object')
+KINDS = ('static', 'moving_camera', 'moving_object', 'orbit', 'object_leaves', 'long')
 NOISES = ('stereo', 'tof')
 #: Smallest gap between surfaces, metres, whose middle half makes a pixel mixed.
 MIXED_GAP_M = 0.1
@@ -56,6 +74,17 @@ MIXED_GAP_M = 0.1
 MIXED_GAP_SIGMAS = 6.0
 #: Bits of :func:`labels`.
 MIXED, HOLE, MOVING, STRADDLING = 1, 2, 4, 8
+#: long: radius of the camera's circle, metres, and the room's half extent (x, z) around
+#: its centre (drawn from the seed in this range).
+LONG_RADIUS_M = 2.5
+ROOM_HALF_M = (4.5, 5.0)
+#: long: how far the camera looks inwards of its heading, and down, degrees.
+LONG_INWARD_DEG = 20.0
+LONG_PITCH_DEG = 8.0
+#: long: free space kept on either side of the camera's circle, metres.
+LONG_CLEARANCE_M = 0.5
+#: object_leaves: the box's depth as a share of the background's behind its centre.
+LEAVING_DEPTH_SHARE = 0.75
 
 
 @dataclass(frozen=True)
@@ -75,8 +104,9 @@ class DepthSequenceConfig:
         supersample: Rays per pixel and axis (mixed pixels).
         hole_fraction: Share of the image in blobs lost each frame.
         left_band: Share of the width lost on the left (stereo).
-        step_m: moving_camera: sideways motion per frame, metres.
+        step_m: moving_camera: sideways motion per frame; long: along the circle, metres.
         turn_deg: moving_camera: turn per frame, degrees.
+        orbit_deg: orbit: the arc swept from the first frame to the last, degrees.
         frame_rate_hz: Spacing of the stamps.
         start_stamp_ns: Stamp of the first frame.
     """
@@ -95,6 +125,7 @@ class DepthSequenceConfig:
     left_band: float = 0.05
     step_m: float = 0.02
     turn_deg: float = 0.3
+    orbit_deg: float = 40.0
     frame_rate_hz: float = 30.0
     start_stamp_ns: int = 1_700_000_000_000_000_000
 
@@ -126,6 +157,7 @@ class DepthSequenceConfig:
             ('hole_fraction', 0 <= self.hole_fraction < 0.5, 'in [0, 0.5)'),
             ('left_band', 0 <= self.left_band < 0.5, 'in [0, 0.5)'),
             ('baseline_m', self.baseline_m > 0, 'positive'),
+            ('orbit_deg', 0 <= self.orbit_deg <= 90, 'in [0, 90]'),
             ('frame_rate_hz', self.frame_rate_hz > 0, 'positive'),
         ]
         for name, ok, wanted in checks:
@@ -149,7 +181,8 @@ class DepthFrame:
             mixed or not (a mixture close to one surface is not a mixed pixel, nor a
             valid one).
         holes: Pixels with no measurement.
-        moving: Pixels that see a moving object (moving_object).
+        moving: Pixels that see a moving object (moving_object; object_leaves: the box
+            while it is there).
         pose: The camera's optical frame in the world.
         camera: The intrinsics.
     """
@@ -175,13 +208,174 @@ def labels(frame: DepthFrame) -> NDArray[np.uint8]:
     return out
 
 
+def pose_at(config: DepthSequenceConfig, index: int) -> Pose:
+    """The camera's optical frame in the world at frame ``index``.
+
+    Raises:
+        ConfigError: Naming the invalid field of ``config``.
+        ArgumentError: ``index`` is not a frame of ``config``.
+    """
+    _check_index(config.validate(), index)
+    return _pose(config, index)
+
+
+def scene_at(config: DepthSequenceConfig, index: int) -> Scene:
+    """The exact scene of frame ``index``, the one its frame was rendered from.
+
+    Raises:
+        ConfigError: Naming the invalid field of ``config``.
+        ArgumentError: ``index`` is not a frame of ``config``.
+    """
+    _check_index(config.validate(), index)
+    return _scene(config, index)
+
+
+def stamp_at(config: DepthSequenceConfig, index: int) -> int:
+    """The stamp of frame ``index``, nanoseconds."""
+    return config.start_stamp_ns + round(index * NS_PER_S / config.frame_rate_hz)
+
+
+def _check_index(config: DepthSequenceConfig, index: int) -> None:
+    if not 0 <= index < config.n_frames:
+        raise ArgumentError(f'index {index}: not a frame of the sequence (0..'
+                            f'{config.n_frames - 1})')
+
+
 def _pose(config: DepthSequenceConfig, index: int) -> Pose:
+    if config.kind == 'orbit':
+        return _orbit_pose(config, index)
+    if config.kind == 'long':
+        return _long_pose(config, index)
     if config.kind != 'moving_camera':
         return Pose()
     angle = math.radians(config.turn_deg * index)
     c, s = math.cos(angle), math.sin(angle)
     rotation = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     return Pose(rotation, np.array([config.step_m * index, 0.0, 0.0]))
+
+
+def _orbit_pose(config: DepthSequenceConfig, index: int) -> Pose:
+    """On the horizontal circle through the origin around ORBIT_CENTRE, -orbit_deg / 2 at
+    the first frame to +orbit_deg / 2 at the last, looking at the centre."""
+    centre = np.asarray(ORBIT_CENTRE, np.float64)
+    share = index / (config.n_frames - 1) - 0.5 if config.n_frames > 1 else 0.0
+    angle = math.radians(config.orbit_deg * share)
+    radius = math.hypot(centre[0], centre[2])
+    position = np.array([centre[0] + radius * math.sin(angle), 0.0,
+                         centre[2] - radius * math.cos(angle)])
+    return look_at(position, centre)
+
+
+def _long_pose(config: DepthSequenceConfig, index: int) -> Pose:
+    """On the circle of LONG_RADIUS_M round the room's centre (the origin), heading
+    along it, looking LONG_INWARD_DEG inwards and LONG_PITCH_DEG down."""
+    phi = config.step_m * index / LONG_RADIUS_M
+    position = LONG_RADIUS_M * np.array([math.cos(phi), 0.0, math.sin(phi)])
+    heading = np.array([-math.sin(phi), 0.0, math.cos(phi)])
+    inward = -position / LONG_RADIUS_M
+    inward_rad, pitch = math.radians(LONG_INWARD_DEG), math.radians(LONG_PITCH_DEG)
+    look = math.cos(inward_rad) * heading + math.sin(inward_rad) * inward
+    look = math.cos(pitch) * look + math.sin(pitch) * np.array([0.0, 1.0, 0.0])  # y is down
+    return look_at(position, position + look)
+
+
+def _scene(config: DepthSequenceConfig, index: int) -> Scene:
+    camera = config.camera
+    if config.kind == 'long':
+        return _room(config.seed)
+    scene = build_scene(config.seed, index if config.kind == 'moving_object' else 0,
+                        camera.fx, camera.width, camera.height)
+    if config.kind == 'object_leaves' and index < config.n_frames // 2:
+        return Scene((*scene.primitives, _leaving_box(config, scene)))
+    return scene
+
+
+def _noise_material(rng: np.random.Generator, period_m: float) -> Material:
+    """A random colour with a strong noise texture of ``period_m``."""
+    colour = rng.uniform(0.5, 0.9, 3)
+    texture = tx.Texture(tx.NOISE, period_m, int(rng.integers(1 << 30)), 4, 1.0, 0.5)
+    return Material((0.3 * colour[0], 0.3 * colour[1], 0.3 * colour[2]),
+                    (colour[0], colour[1], colour[2]), texture)
+
+
+def _leaving_box(config: DepthSequenceConfig, scene: Scene) -> Box:
+    """object_leaves' box: centred on the ray of a pixel of the upper half (the seed's
+    first that sees the background), at LEAVING_DEPTH_SHARE of the background's depth."""
+    camera = config.camera
+    rng = np.random.default_rng([config.seed, 31])
+    background = scene.labels.index('background')
+    for _ in range(100):  # the objects hide the background at a few pixels of the band
+        ray = np.array([[rng.uniform(-0.35, 0.35) * camera.width / camera.fx,
+                         rng.uniform(-0.3, 0.0) * camera.height / camera.fy, 1.0]])
+        t, hit = scene.cast(np.zeros(3), ray)
+        if hit[0] == background:
+            break
+    depth = LEAVING_DEPTH_SHARE * float(t[0])
+    half = rng.uniform(0.08, 0.11, 3) * depth
+    return Box('leaving', _noise_material(rng, 0.3), ray[0] * depth,
+               rotation(rng.uniform(20, 50), rng.uniform(-10, 10)), half)
+
+
+def _room(seed: int) -> Scene:
+    """long's room: a box the camera is inside (its inner faces: walls, floor, ceiling);
+    cabinets against the walls, boxes and spheres on the floor, pillars from floor to
+    ceiling, none overlapping another and all LONG_CLEARANCE_M off the camera's circle."""
+    rng = np.random.default_rng([seed, 41])
+    half_x, half_z = rng.uniform(*ROOM_HALF_M, 2)
+    floor, ceiling = rng.uniform(1.2, 1.4), -rng.uniform(1.4, 1.8)
+    middle, half_height = (floor + ceiling) / 2, (floor - ceiling) / 2
+    prims: list[Primitive] = [Box('room', _noise_material(rng, 0.4), [0.0, middle, 0.0],
+                                  np.eye(3), [half_x, half_height, half_z])]
+    taken: list[tuple[float, float, float]] = []  # x, z, reach of what stands on the floor
+
+    def free(x: float, z: float, reach: float) -> bool:
+        """Whether a footprint of radius ``reach`` at (x, z) keeps clear of the circle and
+        of every footprint taken, and takes it if so."""
+        ok = abs(math.hypot(x, z) - LONG_RADIUS_M) > reach + LONG_CLEARANCE_M and all(
+            math.hypot(x - x2, z - z2) > reach + r2 + 0.1 for x2, z2, r2 in taken)
+        if ok:
+            taken.append((x, z, reach))
+        return ok
+
+    def spot(reach: float) -> tuple[float, float] | None:
+        """A free (x, z) inside the walls for a footprint of radius ``reach``."""
+        for _ in range(200):
+            x = rng.uniform(-half_x + reach, half_x - reach)
+            z = rng.uniform(-half_z + reach, half_z - reach)
+            if free(x, z, reach):
+                return x, z
+        return None
+
+    for _ in range(8):  # cabinets, 2 cm off a wall, on the floor
+        width, height, depth = rng.uniform([0.3, 0.3, 0.15], [0.8, 1.0, 0.3])
+        wall, sign = int(rng.integers(2)), float(rng.choice([-1.0, 1.0]))
+        along = rng.uniform(-1.0, 1.0)
+        if wall == 0:  # a wall of constant x
+            half = np.array([depth, height, width])
+            centre = [sign * (half_x - depth - 0.02), floor - height,
+                      along * (half_z - width)]
+        else:
+            half = np.array([width, height, depth])
+            centre = [along * (half_x - width), floor - height,
+                      sign * (half_z - depth - 0.02)]
+        if free(centre[0], centre[2], float(np.hypot(half[0], half[2]))):
+            prims.append(Box('cabinet', _noise_material(rng, 0.15), centre, np.eye(3), half))
+    for _ in range(4):
+        radius = rng.uniform(0.12, 0.25)
+        if (xz := spot(radius)) is not None:
+            prims.append(Cylinder('pillar', _noise_material(rng, 0.2), [xz[0], middle, xz[1]],
+                                  [0.0, 1.0, 0.0], radius, half_height))
+    for _ in range(12):
+        half = rng.uniform([0.2, 0.15, 0.2], [0.5, 0.6, 0.5])
+        if (xz := spot(float(np.hypot(half[0], half[2])))) is not None:
+            prims.append(Box('box', _noise_material(rng, 0.15), [xz[0], floor - half[1], xz[1]],
+                             rotation(rng.uniform(0, 90)), half))
+    for _ in range(5):
+        radius = rng.uniform(0.2, 0.4)
+        if (xz := spot(radius)) is not None:
+            prims.append(Sphere('sphere', _noise_material(rng, 0.15),
+                                [xz[0], floor - radius, xz[1]], radius))
+    return Scene(tuple(prims))
 
 
 def _holes(config: DepthSequenceConfig, rng: np.random.Generator) -> B:
@@ -213,15 +407,10 @@ def _simulate(config: DepthSequenceConfig) -> Iterator[DepthFrame]:
     s = config.supersample
     rays = pixel_rays(camera, s)
     centre_rays = pixel_rays(camera, 1)
-    still = build_scene(config.seed, 0, camera.fx, camera.width, camera.height)
-    later = build_scene(config.seed, 1, camera.fx, camera.width, camera.height)
-    # the primitives that move from frame to frame
-    movers = np.array([not np.array_equal(a.centre, b.centre)
-                       for a, b in zip(still.primitives, later.primitives, strict=True)])
+    movers = _movers(config)
     shape = (camera.height, camera.width)
     for index in range(config.n_frames):
-        scene = build_scene(config.seed, index, camera.fx, camera.width, camera.height) \
-            if config.kind == 'moving_object' else still
+        scene = _scene(config, index)
         pose = _pose(config, index)
         t, _ = scene.cast(pose.position, rays @ pose.rotation.T)
         sub = np.where(np.isfinite(t), t, np.nan).reshape(*shape, s * s)
@@ -242,10 +431,21 @@ def _simulate(config: DepthSequenceConfig) -> Iterator[DepthFrame]:
         holes = _holes(config, rng) | ~np.isfinite(depth)
         depth[holes] = np.nan
         moving = np.zeros(shape, bool)
+        hit = hit.reshape(shape)
+        seen = hit >= 0
         if config.kind == 'moving_object':  # the centre ray hits a primitive that moves
-            hit = hit.reshape(shape)
-            seen = hit >= 0
             moving[seen] = movers[hit[seen]]
-        stamp = config.start_stamp_ns + round(index * NS_PER_S / config.frame_rate_hz)
-        yield DepthFrame(index, stamp, depth.astype(np.float32), truth, mixed & ~holes,
-                         straddling & ~holes, holes, moving, pose, camera)
+        elif config.kind == 'object_leaves':  # ... or the leaving box (the last primitive)
+            moving[seen] = np.asarray(scene.labels)[hit[seen]] == 'leaving'
+        yield DepthFrame(index, stamp_at(config, index), depth.astype(np.float32), truth,
+                         mixed & ~holes, straddling & ~holes, holes, moving, pose, camera)
+
+
+def _movers(config: DepthSequenceConfig) -> B:
+    """moving_object: which primitives of the scene move from frame to frame."""
+    camera = config.camera
+    still = build_scene(config.seed, 0, camera.fx, camera.width, camera.height)
+    later = build_scene(config.seed, 1, camera.fx, camera.width, camera.height)
+    out: B = np.array([not np.array_equal(a.centre, b.centre)
+                       for a, b in zip(still.primitives, later.primitives, strict=True)])
+    return out

@@ -6,6 +6,10 @@ rectified camera frame (X right, Y down, Z forward, metres). A ray is ``o + t * 
 ``d = (x, y, 1)`` it is the depth Z). Shading is Lambertian under one fixed directional
 light plus ambient light and uses each surface's fixed outward normal, so the radiance of a
 surface point does not depend on which camera looks at it.
+
+Every primitive also gives the exact unsigned Euclidean distance of points to its surface
+(:meth:`Primitive.distance`, :meth:`Scene.distance`: the nearest of a scene's surfaces), so
+a reconstruction (a fused mesh) can be scored against the true surface in metres.
 """
 
 from __future__ import annotations
@@ -14,8 +18,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from depth_nodes.errors import ArgumentError
 from depth_nodes.sim.texture import Texture
 
 FloatArray = NDArray[np.float64]
@@ -60,6 +65,20 @@ def _rows(v: FloatArray, n: int) -> FloatArray:
     return np.broadcast_to(v, (n, 3))
 
 
+def _points(p: ArrayLike) -> FloatArray:
+    """``p`` as an (N, 3) float64 array of finite points.
+
+    Raises:
+        ArgumentError: Another shape, or a NaN or infinite coordinate.
+    """
+    points = np.asarray(p, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ArgumentError(f'p must be an (N, 3) array of points, got shape {points.shape}')
+    if not np.isfinite(points).all():
+        raise ArgumentError('p must hold finite coordinates, got NaN or inf')
+    return points
+
+
 class Primitive:
     """Base class: a surface with an exact ray intersection and surface coordinates.
 
@@ -92,6 +111,24 @@ class Primitive:
 
     def surface(self, p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Outward unit normals (N, 3) and surface coordinates s, t (N,) at points ``p``."""
+        raise NotImplementedError
+
+    def distance(self, p: ArrayLike) -> FloatArray:
+        """Exact unsigned Euclidean distance of each point to the surface.
+
+        Args:
+            p: (N, 3) points, metres.
+
+        Returns:
+            (N,) float64 distances, metres (0 on the surface).
+
+        Raises:
+            ArgumentError: ``p`` is not (N, 3) or not finite.
+        """
+        return self._distance(_points(p))
+
+    def _distance(self, p: FloatArray) -> FloatArray:
+        """:meth:`distance` of checked (N, 3) float64 points."""
         raise NotImplementedError
 
 
@@ -135,6 +172,14 @@ class Rect(Primitive):
     def surface(self, p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         rel = p - self.centre
         return _rows(self.normal, len(p)), rel @ self.e1, rel @ self.e2
+
+    def _distance(self, p: FloatArray) -> FloatArray:
+        # Out of plane, and past the edges in plane (an infinite half size: never past).
+        rel = p - self.centre
+        past1 = np.maximum(np.abs(rel @ self.e1) - self.half_size[0], 0.0)
+        past2 = np.maximum(np.abs(rel @ self.e2) - self.half_size[1], 0.0)
+        out: FloatArray = np.sqrt(past1 * past1 + past2 * past2 + (rel @ self.normal) ** 2)
+        return out
 
 
 class Box(Primitive):
@@ -181,6 +226,15 @@ class Box(Primitive):
         face = axis * 2 + (sign > 0)
         return normal, first + 3.7 * face, second - 2.3 * face
 
+    def _distance(self, p: FloatArray) -> FloatArray:
+        # Per local axis, how far the point is past the face (negative: short of it).
+        past = np.abs((p - self.centre) @ self.rotation) - self.half_size
+        outside = np.linalg.norm(np.maximum(past, 0.0), axis=1)
+        # A point inside is as far from the surface as from its nearest face.
+        inside = np.maximum(-past.max(axis=1), 0.0)
+        out: FloatArray = outside + inside
+        return out
+
 
 class Sphere(Primitive):
     """A sphere; surface coordinates are arc lengths (longitude seam faces away, +Z)."""
@@ -200,6 +254,10 @@ class Sphere(Primitive):
         s = self.radius * np.arctan2(n[:, 0], -n[:, 2])
         t = self.radius * np.arcsin(np.clip(n[:, 1], -1.0, 1.0))
         return n, s, t
+
+    def _distance(self, p: FloatArray) -> FloatArray:
+        out: FloatArray = np.abs(np.linalg.norm(p - self.centre, axis=1) - self.radius)
+        return out
 
 
 class Cylinder(Primitive):
@@ -247,6 +305,16 @@ class Cylinder(Primitive):
         n = radial / np.linalg.norm(radial, axis=1, keepdims=True)
         s = self.radius * np.arctan2(n @ self.e2, n @ self.e1)
         return n, s, axial
+
+    def _distance(self, p: FloatArray) -> FloatArray:
+        # The nearest surface point is on the point's side of the axis, at its axial
+        # position clamped to the length: past an end, on the rim (the cylinder is open).
+        rel = p - self.centre
+        axial = rel @ self.axis
+        radial = np.linalg.norm(rel - axial[:, None] * self.axis, axis=1)
+        past_end = np.maximum(np.abs(axial) - self.half_length, 0.0)
+        out: FloatArray = np.hypot(past_end, radial - self.radius)
+        return out
 
 
 def _dot(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -329,6 +397,27 @@ class Scene:
                 tb[sel[closer]] = t[closer]
                 ib[sel[closer]] = k
         return t_best, idx
+
+    def distance(self, p: ArrayLike) -> FloatArray:
+        """Exact unsigned distance of each point to the nearest surface of the scene.
+
+        Args:
+            p: (N, 3) points, metres.
+
+        Returns:
+            (N,) float64 distances, metres (``inf`` for a scene without primitives).
+
+        Raises:
+            ArgumentError: ``p`` is not (N, 3) or not finite.
+        """
+        points = _points(p)
+        out = np.full(len(points), np.inf)
+        for start in range(0, len(points), CHUNK):  # chunked: temporaries stay in cache
+            sl = slice(start, start + CHUNK)
+            best = out[sl]
+            for prim in self.primitives:
+                np.minimum(best, prim._distance(points[sl]), out=best)
+        return out
 
     def radiance(self, o: FloatArray, d: FloatArray) -> FloatArray:
         """Linear RGB radiance (N, 3) seen along each ray (0 where nothing is hit)."""

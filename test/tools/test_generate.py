@@ -131,7 +131,8 @@ def test_generate_cli_errors(tmp_path: Path) -> None:
         "depth-nodes generate: error: unknown preset 'nope' (presets: stereo_vga, "
         'stereo_qvga_color, stereo_qvga_fisheye, structured_light_vga, tof_vga, mvs_sideways, '
         'mvs_forward, mvs_orbit, mvs_rig, depth_static, depth_moving_camera, '
-        'depth_moving_object, depth_tof_static, bad_inputs, all)')
+        'depth_moving_object, depth_tof_static, depth_orbit, depth_object_leaves, depth_long, '
+        'stereo_orbit, bad_inputs, all)')
     for preset in ('stereo_qvga_color', 'tof_vga'):
         result = run_cli(['generate', str(tmp_path / 'x'), '--preset', preset,
                           '--frames', '0'])

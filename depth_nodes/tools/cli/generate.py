@@ -1,5 +1,6 @@
 """`depth-nodes generate`: synthetic bags with ground truth (stereo, structured light, ToF,
-multi-view, depth cameras), and the hostile-input campaign."""
+multi-view, depth cameras, a moving stereo pair for fusion), and the hostile-input
+campaign."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from depth_nodes.sim.sequence import SequenceConfig
 from depth_nodes.sim.tof import ToFSimConfig
 from depth_nodes.tools import signals
 from depth_nodes.tools.bags import depth_filter as depth
+from depth_nodes.tools.bags import fusion_stereo as fusion
 from depth_nodes.tools.bags import multiview as mvs
 from depth_nodes.tools.bags import structured_light as sl
 from depth_nodes.tools.bags import tof
@@ -160,9 +162,34 @@ def _depth_options(config: DepthSequenceConfig, args: argparse.Namespace
     return config
 
 
+def _fusion_options(config: fusion.FusionStereoConfig, args: argparse.Namespace
+                    ) -> fusion.FusionStereoConfig:
+    """``--size`` of a fusion stereo preset (``--pose-noise`` is the multi-view presets')."""
+    if args.pose_noise is not None:
+        raise ConfigError('--pose-noise applies to the multi-view presets (mvs_*), not to '
+                          'stereo_orbit')
+    if args.size is not None:
+        width, height = image_size(args.size)
+        config = fusion.with_sequence(config, width=width, height=height)
+    return config
+
+
+FUSION_STEREO = PresetKind[fusion.FusionStereoConfig](
+    fusion.PRESETS,
+    with_seed=lambda c, seed: fusion.with_sequence(c, seed=seed),
+    with_frames=lambda c, frames: fusion.with_sequence(c, n_frames=frames),
+    write=lambda path, c, overwrite: fusion.write_fusion_stereo_bag(path, c,
+                                                                    overwrite=overwrite),
+    describe=lambda c: (f'{c.sequence.width}x{c.sequence.height}, {c.sequence.kind} stereo '
+                        f'pair, baseline {c.sequence.baseline_m:g} m, '
+                        f'{_frames(c.sequence.n_frames)}'),
+    with_options=_fusion_options,
+    bundled=())
+
+
 #: Every preset by name.
 KINDS: dict[str, PresetKind[Any]] = {
-    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF, MULTIVIEW, DEPTH)
+    name: kind for kind in (STEREO, STRUCTURED_LIGHT, TOF, MULTIVIEW, DEPTH, FUSION_STEREO)
     for name in kind.presets}
 #: The committed bags, in the order `--preset all` writes them.
 BUNDLED = [name for name, kind in KINDS.items()
@@ -178,15 +205,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'mvs_rig (a moving camera, or a rig of three, with poses and exact '
                         'depth), depth_static, depth_moving_camera, depth_moving_object, '
                         'depth_tof_static (a depth camera\'s depth images with exact depth, '
-                        'for depth_filter), all (the bundled eight: not mvs_forward, '
-                        'mvs_orbit and three of the depth_*), or bad_inputs (the hostile '
-                        'campaign, from --source)')
+                        'for depth_filter), depth_orbit, depth_object_leaves, depth_long '
+                        '(the same, for volumetric fusion), stereo_orbit (a moving stereo '
+                        'pair with odometry and exact depth, for fusion), all (the bundled '
+                        'eight: not mvs_forward, mvs_orbit, stereo_orbit and six of the '
+                        'depth_*), or bad_inputs (the hostile campaign, from --source)')
     parser.add_argument('--source', help='bad_inputs: stereo bag whose raw frames to use '
                         '(default: the bundled stereo_vga)')
     parser.add_argument('--seed', type=int, help='override the preset seed')
     parser.add_argument('--frames', type=int, help='override the number of frames')
     parser.add_argument('--size', metavar='WxH',
-                        help='mvs_*, depth_*: the image size (default 320x240)')
+                        help='mvs_*, depth_*, stereo_orbit: the image size (default 320x240; '
+                        'depth_orbit and stereo_orbit 640x480)')
     parser.add_argument('--pose-noise', type=float, nargs=2, metavar=('DEG', 'M'),
                         help='mvs_*: standard deviation of the poses the bag reports: '
                         'rotation in degrees, position in metres per axis (the images stay '
