@@ -35,6 +35,7 @@ from depth_nodes.nodes.registry import NodeEntry
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
+from depth_nodes.ros.serialized import Serialized
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 from depth_nodes.sim.projector import ProjectorCameraSim, ProjectorSimConfig
 from depth_nodes.sim.tof import ToFSimConfig, simulate_tof
@@ -176,6 +177,11 @@ KINDS = {
         'camera_info': info(FRAME.left_camera, t),
         'confidence': image(np.full((H, W), 0.8, np.float32), '32FC1', t),
         'odom': odometry(t)}, '/filtered/image_rect'),
+    'posed_depth_map': Kind(lambda t, _: {
+        'image_rect': depth(t),
+        'camera_info': info(FRAME.left_camera, t),
+        'confidence': image(np.full((H, W), 0.8, np.float32), '32FC1', t),
+        'odom': odometry(t)}, '/mesh'),
 }
 
 #: Parameters a node runs with here (ranges that fit 64 x 48 images, its optional inputs
@@ -197,6 +203,9 @@ PARAMETERS = {
     # its optional noise input too: the tof node's confidence
     'depth_filter': [Parameter('pose_source', value='odometry'),
                      Parameter('noise_model', value='tof'), Parameter('threads', value=1)],
+    # its optional noise input too, and a mesh for every frame
+    'tsdf_fusion': [Parameter('weighting_mode', value='confidence'),
+                    Parameter('mesh_rate_hz', value=1000.0), Parameter('threads', value=1)],
 }
 
 
@@ -227,7 +236,8 @@ def make_node(entry: NodeEntry, context: Context) -> Any:
     node = resolve_plugin(entry.name)(context=context,
                                       parameter_overrides=PARAMETERS.get(entry.name, []))
     node.outbox = []
-    node.sink = lambda topic, msg: node.outbox.append((topic, msg))
+    node.sink = lambda topic, msg: node.outbox.append(
+        (topic, msg.message() if isinstance(msg, Serialized) else msg))
     node.routes = {spec.topic.lstrip('/'): spec.callback for spec in node.inputs}
     return node
 

@@ -41,6 +41,9 @@ INPUT_KINDS = {
     'posed_camera': 'one camera\'s rectified image + camera_info, and its poses (odometry)',
     'posed_depth': 'a depth image (image_rect) + its camera_info (+ a confidence or sigma '
                    'image), and the camera\'s poses (odometry) where a pose source is set',
+    'posed_depth_map': 'a depth image (image_rect) + its camera_info (+ a confidence or '
+                       'sigma image) and the camera\'s poses (odometry), fused into a map '
+                       '(a mesh out)',
 }
 
 
@@ -137,6 +140,9 @@ NODES = (
     NodeEntry('multiview_stereo', 'depth_nodes.nodes.multiview_stereo:MultiViewStereoNode',
               'Multi-view stereo: a moving camera\'s posed images (or a rig\'s) -> depth, '
               'sigma, confidence and points', 'posed_camera', camera_reader=True),
+    NodeEntry('tsdf_fusion', 'depth_nodes.nodes.tsdf_fusion:TsdfFusionNode',
+              'TSDF fusion: posed depth images (weighted by their sigma or confidence) -> '
+              'a mesh, surface points and a distance-field slice', 'posed_depth_map'),
 )
 
 

@@ -210,6 +210,9 @@ class PoseInput(Generic[T]):
         values = self.params.values
         self.source: str = values['pose_source']
         self.world: str = values['world_frame']
+        #: The frame the poses are given in: the last odometry's or pose's header frame,
+        #: or ``world_frame`` with tf (and before any pose came).
+        self.pose_frame: str = self.world
         self.camera_frame: str = values['camera_frame']
         self.mount = Pose.from_values(values['camera_in_body'])
         limits = {'jump_limit': values['pose_jump_limit'],
@@ -296,6 +299,8 @@ class PoseInput(Generic[T]):
             self._node.drop('bad_pose', f'pose at {stamp / NS_PER_S:.3f} s skipped: {exc}')
             return
         _count(self._node, added, 'pose')
+        if added.kept:
+            self.pose_frame = header.frame_id or self.pose_frame
         self._changed(added, stamp)
 
     def _tf_changed(self, added: Added | None) -> None:

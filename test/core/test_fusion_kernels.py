@@ -66,9 +66,11 @@ def test_touched_blocks_are_the_reference_s() -> None:
     samples = touch_samples(voxel, block, trunc)
     scratch = np.empty(depth.size * samples, np.int64)
     keys = touched_keys(depth, camera.vector, pose.rotation, pose.position, voxel=voxel,
-                        block=block, truncation=trunc, max_depth=3.0, buffer=scratch)
+                        block=block, truncation=trunc, min_depth=1.1, max_depth=3.0,
+                        buffer=scratch)
     expected = touched_blocks_reference(depth, camera, pose, voxel=voxel, block=block,
-                                        truncation=trunc, max_depth=3.0, samples=samples)
+                                        truncation=trunc, min_depth=1.1, max_depth=3.0,
+                                        samples=samples)
     assert {tuple(c) for c in key_coords(keys).tolist()} == expected
     assert len(keys) == len(np.unique(keys))
 

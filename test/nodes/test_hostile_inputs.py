@@ -75,7 +75,8 @@ Frame = list[dict[str, Any]]
 
 
 def _stamp_ns(msg: Any) -> int | None:
-    header = getattr(msg, 'header', None)
+    markers = getattr(msg, 'markers', None)  # a MarkerArray: its markers' stamp
+    header = getattr(msg, 'header', None) if not markers else markers[-1].header
     return None if header is None else header.stamp.sec * 10**9 + header.stamp.nanosec
 
 

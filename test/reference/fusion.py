@@ -18,8 +18,8 @@ F32 = NDArray[np.float32]
 
 
 def touched_blocks_reference(depth: F32, camera: Intrinsics, pose: Pose, *, voxel: float,
-                             block: int, truncation: float, max_depth: float,
-                             samples: int) -> set[tuple[int, int, int]]:
+                             block: int, truncation: float, min_depth: float,
+                             max_depth: float, samples: int) -> set[tuple[int, int, int]]:
     """The blocks of the voxels nearest ``samples`` points along each pixel's ray from
     ``D - T`` to ``D + T``."""
     out = set()
@@ -27,7 +27,7 @@ def touched_blocks_reference(depth: F32, camera: Intrinsics, pose: Pose, *, voxe
     for y in range(depth.shape[0]):
         for x in range(depth.shape[1]):
             d = float(depth[y, x])
-            if not d > 0 or d > max_depth:
+            if not d > 0 or d < min_depth or d > max_depth:
                 continue
             ray = np.array([(x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0])
             for s in range(samples):
@@ -77,7 +77,8 @@ def integrate_reference(volume: TsdfVolume, slots: Any, depth: F32, camera: Intr
                     u = camera.fx * x / z + camera.cx
                     v = camera.fy * y / z + camera.cy
                     d, xn, yn = measured_reference(depth, u, v, 0.5 * trunc)
-                    if not d > 0 or d > p.max_integration_distance:
+                    if not d > 0 or d < p.min_integration_distance or \
+                            d > p.max_integration_distance:
                         continue
                     sdf = d - z
                     if sdf < -trunc:

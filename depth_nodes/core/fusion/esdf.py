@@ -4,16 +4,18 @@ horizontal slice, and the distance at any point. No ROS.
 Sites are the observed voxels within one voxel of the surface (|sdf| <= s); a site's
 distance is its own TSDF value, any other observed voxel's is the Euclidean distance to the
 nearest site's centre, positive in free space, negative behind the surface (the TSDF's
-sign), within ``max_distance`` (farther: ``max_distance``). Unobserved voxels have none
-(NaN): unknown space is neither free nor occupied.
+sign), up to ``max_distance`` (farther: ``max_distance``). Unobserved voxels have none:
+unknown space is neither free nor occupied.
 
 The slice at ``height`` along ``axis`` (``z`` for a REP 103 world, ``y`` for the
-simulator's optical-frame worlds, whose y points down) is computed over the blocks of the
-band ``height +- max_distance``: per layer of the band an exact 2-D Euclidean distance
-transform to that layer's sites (OpenCV's), then for each cell of the slice the nearest
-site over the layers, ``min_l sqrt(D_l^2 + (l - l_slice)^2)``: exact to the sites'
-centres. It is recomputed over the band when asked, not updated voxel by voxel as
-voxblox's and nvblox's are; :func:`esdf_slice`'s time is what ``bench fusion`` reports.
+simulator's optical-frame worlds, whose y points down) covers the square of half side
+``radius`` around ``centre`` (the camera). The 3-D distance from a cell p of the slice to
+the sites within ``max_distance`` of its plane is ``min over columns q of |p - q|^2 +
+f(q)``, with ``f(q)`` the smallest squared height of a site above or below q: one 2-D
+distance transform of a sampled function (Felzenszwalb and Huttenlocher, 2012), two passes
+of lower envelopes of parabolas, exact, in time linear in the cells whatever the band's
+height. It is recomputed over the square when asked, not updated voxel by voxel as
+voxblox's and nvblox's are; ``bench fusion`` reports its time.
 """
 
 from __future__ import annotations
@@ -21,7 +23,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numba
 import numpy as np
 from numpy.typing import NDArray
@@ -54,86 +55,143 @@ class EsdfSlice:
     distance: F32
 
 
-@numba.njit(cache=True, nogil=True, parallel=True)
+@numba.njit(cache=True, nogil=True)
 def _scatter(slots: I32, coords: I32, tsdf: F32, weight: F32, block: int, axis: int,
-             low: int, origin_u: int, origin_v: int, truncation: float, voxel: float,
-             min_weight: float, value: F32, site: NDArray[np.uint8]) -> None:
-    """The band's voxels into dense (layers, U, V) arrays: ``value`` the sdf (NaN
-    unobserved), ``site`` 0 at a site, 1 elsewhere (OpenCV's distance is to the 0s)."""
+             mid: int, reach: int, origin_u: int, origin_v: int, truncation: float,
+             voxel: float, min_weight: float, value: F32, lowest: F64) -> None:
+    """The band's voxels into the slice's grids: ``value`` the sdf of the slice's own voxels
+    (NaN unobserved), ``lowest`` the smallest squared height (in voxels) of a site over
+    each cell."""
     u_axis = 1 if axis == 0 else 0
     v_axis = 1 if axis == 2 else 2
-    layers = value.shape[0]
-    for n in numba.prange(len(slots)):
+    nu, nv = value.shape
+    for n in range(len(slots)):
         slot = slots[n]
         for c in range(block):
             for b in range(block):
                 for a in range(block):
-                    g0 = coords[slot, 0] * block + a
-                    g1 = coords[slot, 1] * block + b
-                    g2 = coords[slot, 2] * block + c
-                    g = (g0, g1, g2)
-                    layer = g[axis] - low
-                    if layer < 0 or layer >= layers:
+                    g = (coords[slot, 0] * block + a, coords[slot, 1] * block + b,
+                         coords[slot, 2] * block + c)
+                    height = g[axis] - mid
+                    if height < -reach or height > reach:
                         continue
                     u = g[u_axis] - origin_u
                     v = g[v_axis] - origin_v
+                    if u < 0 or v < 0 or u >= nu or v >= nv:
+                        continue
                     e = (c * block + b) * block + a
-                    if weight[slot, e] > min_weight:
-                        sdf = tsdf[slot, e] * truncation
-                        value[layer, u, v] = sdf
-                        if abs(sdf) <= voxel:
-                            site[layer, u, v] = 0
+                    if not weight[slot, e] > min_weight:
+                        continue
+                    sdf = tsdf[slot, e] * truncation
+                    if height == 0:
+                        value[u, v] = sdf
+                    if abs(sdf) <= voxel:
+                        lowest[u, v] = min(lowest[u, v], float(height * height))
+
+
+@numba.njit(cache=True, nogil=True)
+def _envelope(f: F64, out: F64, hull: I64, bounds: F64) -> None:
+    """``out[p] = min_q (p - q)^2 + f[q]`` along one line (the lower envelope of
+    parabolas; infinite ``f`` is no parabola)."""
+    n = len(f)
+    k = -1
+    for q in range(n):
+        if not f[q] < math.inf:
+            continue
+        while k >= 0:
+            r = hull[k]
+            cut = ((f[q] + q * q) - (f[r] + r * r)) / (2.0 * (q - r))
+            if cut <= bounds[k]:
+                k -= 1
+            else:
+                break
+        k += 1
+        hull[k] = q
+        bounds[k] = -math.inf if k == 0 else \
+            ((f[q] + q * q) - (f[hull[k - 1]] + hull[k - 1] ** 2)) / (2.0 * (q - hull[k - 1]))
+    if k < 0:
+        for p in range(n):
+            out[p] = math.inf
+        return
+    j = 0
+    for p in range(n):
+        while j < k and bounds[j + 1] < p:
+            j += 1
+        r = hull[j]
+        out[p] = (p - r) * (p - r) + f[r]
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _transform(f: F64) -> F64:
+    """The 2-D transform of ``f``: rows, then columns."""
+    nu, nv = f.shape
+    rows = np.empty_like(f)
+    for u in numba.prange(nu):
+        hull = np.empty(nv, np.int64)
+        bounds = np.empty(nv, np.float64)
+        _envelope(f[u], rows[u], hull, bounds)
+    out = np.empty_like(f)
+    for v in numba.prange(nv):
+        hull = np.empty(nu, np.int64)
+        bounds = np.empty(nu, np.float64)
+        column = np.empty(nu, np.float64)
+        _envelope(rows[:, v].copy(), column, hull, bounds)
+        out[:, v] = column
+    return out
 
 
 def esdf_slice(volume: TsdfVolume, *, axis: str = 'z', height: float = 0.0,
-               max_distance: float = 2.0) -> EsdfSlice:
-    """The distance field on the plane ``axis = height`` (see the module notes).
+               max_distance: float = 2.0, centre: F64 | None = None,
+               radius: float = 10.0) -> EsdfSlice:
+    """The distance field on the plane ``axis = height`` within ``radius`` (metres, a
+    square) of ``centre`` (default: the origin) (see the module notes).
 
     Raises:
-        ArgumentError: An unknown axis, or a max_distance that is not positive.
+        ArgumentError: An unknown axis, or a max_distance or radius that is not positive.
     """
     if axis not in AXES:
         raise ArgumentError(f'esdf axis {axis!r}: must be one of {", ".join(AXES)}')
-    if not max_distance > 0:
-        raise ArgumentError(f'esdf max_distance {max_distance}: must be positive')
+    if not max_distance > 0 or not radius > 0:
+        raise ArgumentError(f'esdf max_distance {max_distance} and radius {radius}: must be '
+                            'positive')
     p = volume.params
     s, bsize = p.voxel_size, p.block_size
     k = AXES.index(axis)
-    centre = math.floor(height / s + 0.5)
+    others = [m for m in range(3) if m != k]
+    mid = math.floor(height / s + 0.5)
     reach = math.ceil(max_distance / s)
-    low, high = centre - reach, centre + reach
+    where = np.zeros(3) if centre is None else np.asarray(centre, np.float64)
+    half = math.ceil(radius / s)
+    # sites up to max_distance beyond the square still count for its cells
+    origin = [math.floor(where[m] / s + 0.5) - half - reach for m in others]
+    size = 2 * (half + reach) + 1
     slots = volume.slots()
-    first = volume.coords[slots, k] * bsize
-    slots = slots[(first + bsize - 1 >= low) & (first <= high)]
+    first = volume.coords[slots] * bsize
+    near = (first[:, k] + bsize - 1 >= mid - reach) & (first[:, k] <= mid + reach)
+    for m, low in zip(others, origin, strict=True):
+        near &= (first[:, m] + bsize - 1 >= low) & (first[:, m] < low + size)
+    slots = slots[near]
     empty = EsdfSlice(np.empty((0, 3), np.float32), np.empty(0, np.float32))
     if not len(slots):
         return empty
-    others = [m for m in range(3) if m != k]
-    lo = volume.coords[slots][:, others].min(axis=0) * bsize
-    hi = (volume.coords[slots][:, others].max(axis=0) + 1) * bsize
-    layers = high - low + 1
-    value = np.full((layers, hi[0] - lo[0], hi[1] - lo[1]), np.nan, np.float32)
-    site = np.ones(value.shape, np.uint8)
-    _scatter(slots, volume.coords, volume.tsdf, volume.weight, bsize, k, low, int(lo[0]),
-             int(lo[1]), p.truncation_m, s, p.min_weight, value, site)
-    mid = centre - low
-    known = np.isfinite(value[mid])
+    value = np.full((size, size), np.nan, np.float32)
+    lowest = np.full((size, size), np.inf, np.float64)
+    _scatter(slots, volume.coords, volume.tsdf, volume.weight, bsize, k, mid, reach,
+             origin[0], origin[1], p.truncation_m, s, p.min_weight, value, lowest)
+    inner = np.zeros((size, size), bool)
+    inner[reach:size - reach, reach:size - reach] = True
+    known = inner & np.isfinite(value)
     if not known.any():
         return empty
-    nearest = np.full(known.shape, np.inf, np.float32)
-    for layer in range(layers):
-        if site[layer].all():
-            continue
-        d2 = cv2.distanceTransform(site[layer], cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        np.minimum(nearest, np.sqrt(d2 * d2 + float((layer - mid) ** 2)), out=nearest)
-    sdf = value[mid]
-    distance = np.minimum(nearest * s, max_distance)
-    distance = np.where(site[mid] == 0, sdf, np.where(sdf < 0, -distance, distance))
+    nearest = np.sqrt(_transform(lowest)) * s
+    distance = np.minimum(nearest, max_distance)
+    sdf = value
+    distance = np.where(np.abs(sdf) <= s, sdf, np.where(sdf < 0, -distance, distance))
     u, v = np.nonzero(known)
     grid = np.empty((len(u), 3), np.float64)
-    grid[:, k] = centre
-    grid[:, others[0]] = u + lo[0]
-    grid[:, others[1]] = v + lo[1]
+    grid[:, k] = mid
+    grid[:, others[0]] = u + origin[0]
+    grid[:, others[1]] = v + origin[1]
     return EsdfSlice((grid * s).astype(np.float32), distance[known].astype(np.float32))
 
 

@@ -46,8 +46,8 @@ CARVE_FACTOR = 0.5
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _touched_rows(depth: F32, cam: F64, rotation: F64, position: F64, voxel: float,
-                  shift: int, truncation: float, max_depth: float, samples: int,
-                  out: I64, counts: I32) -> None:
+                  shift: int, truncation: float, min_depth: float, max_depth: float,
+                  samples: int, out: I64, counts: I32) -> None:
     """Per image row, the keys of the blocks the truncation band of its pixels crosses
     (``samples`` points from ``D - T`` to ``D + T`` along each pixel's ray; blocks of
     ``2^shift`` voxels), a key written again only when it differs from the last one of the
@@ -63,7 +63,7 @@ def _touched_rows(depth: F32, cam: F64, rotation: F64, position: F64, voxel: flo
         ry = (y - cy) / fy
         for x in range(w):
             d = depth[y, x]
-            if not (d > 0.0) or d > max_depth:
+            if not (d > 0.0) or d < min_depth or d > max_depth:
                 continue
             rx = (x - cx) / fx
             # the ray in the world, per metre of Z, in voxels
@@ -87,9 +87,11 @@ def _touched_rows(depth: F32, cam: F64, rotation: F64, position: F64, voxel: flo
 
 
 def touched_keys(depth: F32, cam: F64, rotation: F64, position: F64, *, voxel: float,
-                 block: int, truncation: float, max_depth: float, buffer: I64) -> I64:
+                 block: int, truncation: float, min_depth: float, max_depth: float,
+                 buffer: I64) -> I64:
     """The unique keys of the blocks holding a voxel within ``truncation`` (metres) of a
-    measured surface, seen from a camera at ``(rotation, position)`` (camera -> world).
+    measured surface (a depth in ``[min_depth, max_depth]``), seen from a camera at
+    ``(rotation, position)`` (camera -> world).
 
     Args:
         depth: (H, W) float32 Z, metres; NaN or <= 0 unknown.
@@ -102,8 +104,8 @@ def touched_keys(depth: F32, cam: F64, rotation: F64, position: F64, *, voxel: f
     shift = block.bit_length() - 1
     if 1 << shift != block:
         raise ValueError(f'a block of {block} voxels: a power of 2 expected')
-    _touched_rows(depth, cam, rotation, position, voxel, shift, truncation, max_depth,
-                  samples, buffer, counts)
+    _touched_rows(depth, cam, rotation, position, voxel, shift, truncation, min_depth,
+                  max_depth, samples, buffer, counts)
     parts = [buffer[y * w * samples:y * w * samples + counts[y]] for y in range(h)
              if counts[y]]
     if not parts:
@@ -188,7 +190,8 @@ def _measured(depth: F32, u: float, v: float, spread: float) -> tuple[float, int
 @numba.njit(cache=True, nogil=True, parallel=True)
 def integrate_blocks(depth: F32, aux: F32, mode: int, cam: F64, rotation: F64,
                      translation: F64, slots: I32, coords: I32, tsdf: F32, weight: F32,
-                     voxel: float, block: int, truncation: float, max_depth: float,
+                     voxel: float, block: int, truncation: float, min_depth: float,
+                     max_depth: float,
                      max_weight: float, dropoff: bool, carving: bool, updated: B1,
                      counts: I64) -> None:
     """Update the voxels of blocks ``slots`` with one depth image (see the module notes);
@@ -220,7 +223,7 @@ def integrate_blocks(depth: F32, aux: F32, mode: int, cam: F64, rotation: F64,
                     u = fx * x / z + cx
                     v = fy * y / z + cy
                     d, xn, yn = _measured(depth, u, v, spread)
-                    if not (d > 0.0) or d > max_depth:
+                    if not (d > 0.0) or d < min_depth or d > max_depth:
                         continue
                     sdf = d - z
                     if sdf < -truncation:

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from depth_nodes.core.settings import check_settings, setting
+from depth_nodes.errors import ArgumentError
 
 __all__ = ['BLOCK_SIZES', 'WEIGHTING_MODES', 'TsdfParams']
 
@@ -33,6 +34,9 @@ class TsdfParams:
     truncation_distance: float = setting(4.0, 'Truncation of the signed distance, in voxels '
                                          '(nvblox\'s truncation_distance_vox)', low=1.0,
                                          high=32.0)
+    min_integration_distance: float = setting(0.1, 'Depths nearer than this, metres, are '
+                                              'not integrated (voxblox\'s min_ray_length_m)',
+                                              low=0.0, high=100.0)
     max_integration_distance: float = setting(5.0, 'Depths beyond this, metres, are not '
                                               'integrated', low=0.05, high=1000.0)
     max_weight: float = setting(100.0, 'Largest weight a voxel sums (a cap lets a surface '
@@ -65,7 +69,12 @@ class TsdfParams:
         Raises:
             ArgumentError: The first rule broken.
         """
-        return check_settings(self, 'tsdf')
+        check_settings(self, 'tsdf')
+        if self.min_integration_distance >= self.max_integration_distance:
+            raise ArgumentError(f'tsdf min_integration_distance={self.min_integration_distance!r}'
+                                f': must be below max_integration_distance='
+                                f'{self.max_integration_distance!r}')
+        return self
 
     @property
     def truncation_m(self) -> float:

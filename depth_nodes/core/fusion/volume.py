@@ -91,6 +91,7 @@ class TsdfVolume:
         self.params = (params or TsdfParams()).validate()
         self._allocate_arrays(INITIAL_BLOCKS)
         self._scratch = np.empty(0, np.int64)
+        self._just_allocated = np.empty(0, np.int32)
 
     # ------------------------------------------------------------------ state
     def _allocate_arrays(self, capacity: int) -> None:
@@ -151,8 +152,8 @@ class TsdfVolume:
 
     def _centres(self, coords: I32) -> F64:
         p = self.params
-        centre: F64 = (coords * p.block_size + 0.5 * (p.block_size - 1)) * p.voxel_size
-        return centre
+        centre = (coords * p.block_size + 0.5 * (p.block_size - 1)) * p.voxel_size
+        return centre.astype(np.float64)
 
     def configure(self, params: TsdfParams) -> bool:
         """Take new settings; a new voxel or block size clears the map (True then)."""
@@ -224,9 +225,12 @@ class TsdfVolume:
         integrate_blocks(
             depth, aux, mode, camera.vector, to_camera.rotation, to_camera.position, slots,
             self.coords, self.tsdf, self.weight, p.voxel_size, p.block_size, p.truncation_m,
-            p.max_integration_distance, p.max_weight, p.weight_dropoff, p.free_space_carving,
-            self.changed, counts)
+            p.min_integration_distance, p.max_integration_distance, p.max_weight,
+            p.weight_dropoff, p.free_space_carving, self.changed, counts)
         result.voxels = int(counts.sum())
+        if not result.voxels and result.allocated:
+            self._undo_allocation()  # a frame that fused nothing leaves no trace
+            result.allocated = 0
         integrated = time.perf_counter()
         result.cleared = self._maintain(pose.position)
         done = time.perf_counter()
@@ -251,6 +255,7 @@ class TsdfVolume:
             self._scratch = np.empty(depth.size * samples, np.int64)
         keys = touched_keys(depth, camera.vector, pose.rotation, pose.position,
                             voxel=p.voxel_size, block=p.block_size, truncation=p.truncation_m,
+                            min_depth=p.min_integration_distance,
                             max_depth=p.max_integration_distance, buffer=self._scratch)
         result.touched = len(keys)
         new = keys[self.table.find(keys) < 0]
@@ -272,7 +277,19 @@ class TsdfVolume:
         self.used[slots] = True
         self.changed[slots] = True
         self.table.add(new, slots)
+        self._just_allocated = slots
         result.allocated = len(new)
+
+    def _undo_allocation(self) -> None:
+        """Forget the blocks the last frame allocated, as if it never came (its slots back
+        on the free list in their order)."""
+        slots = self._just_allocated
+        self.table.remove(self.keys[slots])
+        self.used[slots] = False
+        self.changed[slots] = False
+        self.keys[slots] = -1
+        self._free.extend(slots[::-1].tolist())
+        self._just_allocated = np.empty(0, np.int32)
 
     def _make_room(self, new: I64, camera: F64, limit: int, result: Integrated) -> I64:
         """Keep the ``limit`` blocks nearest the camera among the allocated and ``new``

@@ -3,7 +3,8 @@
 Subcommands: ``generate`` (synthetic bags), ``convert`` (a bag as a camera driver records
 it), ``process`` (run nodes over a bag offline),
 ``pipeline`` (the nodes of a graph live, in one process), ``param`` (a running node's
-parameters), ``play`` / ``record`` (bags into and out of a live graph), ``reindex`` (a
+parameters), ``play`` / ``record`` (bags into and out of a live graph), ``export-mesh``
+(a processed bag's final mesh as PLY), ``reindex`` (a
 recording cut off made a complete bag again), ``eval``
 (accuracy against the ground truth in a bag, whatever its kind; ``eval-sl``, ``eval-tof``
 and ``eval-depth-filter`` are aliases of it), ``bench`` (speed beside OpenCV),
@@ -57,6 +58,8 @@ COMMANDS = (
     Command('pipeline', 'run every node of a graph in one process, live', 'pipeline'),
     Command('play', 'publish a bag into the live graph', 'play'),
     Command('record', 'record live topics into a bag', 'record'),
+    Command('export-mesh', 'the final mesh of a processed bag (tsdf_fusion) as a PLY file',
+            'export_mesh'),
     Command('reindex', 'make a recording cut off (killed, a full disk, a power loss) a '
             'complete bag again', 'reindex'),
     Command('param', "a running node's parameters (like ros2 param)", 'param'),
