@@ -14,12 +14,12 @@ venv: $(STAMP)
 $(STAMP): setup.py setup.cfg requirements/constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --disable-pip-version-check 'pip==23.2.1' 'setuptools==65.5.0' 2>&1 | grep -v 'is ignored' || true
-	$(BIN)/python -m pip install -q --disable-pip-version-check -c requirements/constraints.txt -e '.[ros,dev,cluster,realsense,train]' 2>&1 | grep -v 'is ignored' || true
+	$(BIN)/python -m pip install -q --disable-pip-version-check -c requirements/constraints.txt -e '.[ros,dev,cluster,realsense,train,open3d]' 2>&1 | grep -v 'is ignored' || true
 	# a venv made before the switch to the contrib build holds both wheels, which share cv2/
 	if $(BIN)/python -m pip show -q opencv-python-headless >/dev/null 2>&1; then \
 	  $(BIN)/python -m pip uninstall -y -q opencv-python-headless && \
 	  $(BIN)/python -m pip install -q --force-reinstall --no-deps -c requirements/constraints.txt opencv-contrib-python-headless; fi
-	$(BIN)/python -c 'import depth_nodes, rclpy, cv2, numba, rosbags, ray, jax; cv2.structured_light; from depth_nodes.tools.evaluation.librealsense import load_pyrealsense; load_pyrealsense(); from depth_nodes.tools.train.photos import load_photos; load_photos()'
+	$(BIN)/python -c 'import depth_nodes, rclpy, cv2, numba, rosbags, ray, jax; cv2.structured_light; from depth_nodes.tools.evaluation.librealsense import load_pyrealsense; load_pyrealsense(); from depth_nodes.tools.train.photos import load_photos; load_photos(); from depth_nodes.tools.evaluation.open3d_fusion import load_open3d; load_open3d()'
 	touch $(STAMP)
 
 lint: venv

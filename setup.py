@@ -29,6 +29,9 @@ ROS_WHEELS = [
     # poses for the multi-view node: odometry, PoseStamped
     'ros-jazzy-nav-msgs',
     'ros-jazzy-geometry-msgs',
+    # tsdf_fusion: its mesh (MarkerArray) and its save_mesh / clear services
+    'ros-jazzy-visualization-msgs',
+    'ros-jazzy-std-srvs',
 ]
 
 setup(
@@ -70,6 +73,10 @@ setup(
         # the CPU for the gradients; scikit-image for its photographs (textures of the
         # training pairs) and its real Middlebury motorcycle pair (held-out validation)
         'train': ['jax', 'scikit-image'],
+        # to compare tsdf_fusion with Open3D's VoxelBlockGrid (tools/evaluation); no node
+        # imports it. libusb-package: its native library needs libusb-1.0 at import, as
+        # pyrealsense2's does
+        'open3d': ['open3d-cpu', 'libusb-package'],
     },
     zip_safe=False,  # Fast DDS reads the profile from a real file
     maintainer='depth_nodes maintainers',

@@ -12,11 +12,12 @@ from helpers import REPO
 #: ROS packages released for Jazzy, so rosdep resolves them by name. Checked in
 #: ros/rosdistro jazzy/distribution.yaml (repositories rclpy; rcl_interfaces, which
 #: releases rcl_interfaces and rosgraph_msgs; common_interfaces, which releases
-#: sensor_msgs, stereo_msgs, std_msgs, diagnostic_msgs, geometry_msgs and nav_msgs; geometry2, which
-#: releases tf2_msgs; ament_index; launch; launch_ros).
+#: sensor_msgs, stereo_msgs, std_msgs, std_srvs, diagnostic_msgs, geometry_msgs, nav_msgs and
+#: visualization_msgs; geometry2, which releases tf2_msgs; ament_index; launch; launch_ros).
 JAZZY_ROS_PACKAGES = frozenset({
     'rclpy', 'rcl_interfaces', 'rosgraph_msgs', 'sensor_msgs', 'stereo_msgs', 'std_msgs',
-    'diagnostic_msgs', 'geometry_msgs', 'nav_msgs', 'tf2_msgs', 'ament_index_python', 'launch',
+    'std_srvs', 'diagnostic_msgs', 'geometry_msgs', 'nav_msgs', 'visualization_msgs',
+    'tf2_msgs', 'ament_index_python', 'launch',
     'launch_ros',
 })
 
@@ -53,7 +54,10 @@ OPTIONAL = {
     'pyrealsense2': 'realsense',
     'libusb_package': 'realsense',
     'jax': 'train',  # depth-nodes train-cost / train-confidence
+    'open3d': 'open3d',  # eval --open3d, bench fusion: Open3D's VoxelBlockGrid beside
 }
+#: The distribution of an optional module, where its name is not the module's.
+DISTRIBUTIONS = {'open3d': 'open3d_cpu'}
 
 
 def _package() -> tuple[Package, list[str]]:
@@ -146,4 +150,4 @@ def test_optional_imports_are_setup_extras() -> None:
                if k is not None}
     for module, extra in OPTIONAL.items():  # a distribution named with - imports with _
         names = [name.replace('-', '_') for name in ast.literal_eval(literal[extra])]
-        assert module in names, module
+        assert DISTRIBUTIONS.get(module, module) in names, module
