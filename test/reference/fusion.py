@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from depth_nodes.core.fusion.integrate import CARVE_FACTOR, MODE_CODES
+from depth_nodes.core.fusion.integrate import CARVE_FACTOR, CARVE_MARGIN, MODE_CODES
 from depth_nodes.core.fusion.mesh import CASE_TRIANGLES, CASES, CORNERS, EDGES
 from depth_nodes.core.fusion.volume import TsdfVolume
 from depth_nodes.core.geometry import Intrinsics, Pose
@@ -99,7 +99,7 @@ def integrate_reference(volume: TsdfVolume, slots: Any, depth: F32, camera: Intr
                     e = (c * bs + b) * bs + a
                     old = float(volume.weight[slot, e])
                     value = float(volume.tsdf[slot, e])
-                    if p.free_space_carving and sdf > trunc and value < 1.0:
+                    if p.free_space_carving and sdf > CARVE_MARGIN * trunc and value < 1.0:
                         old *= CARVE_FACTOR
                     total = old + obs
                     volume.tsdf[slot, e] = (value * old + min(1.0, sdf / trunc) * obs) / total

@@ -45,13 +45,13 @@ class TsdfParams:
                                   'inverse_square (1/Z^2), sigma ((voxel_size/sigma)^2, '
                                   'from a sigma image) or confidence (from a confidence '
                                   'image)', choices=WEIGHTING_MODES)
-    weight_dropoff: bool = setting(True, 'Lower the weight linearly behind the surface, to '
+    weight_dropoff: bool = setting(False, 'Lower the weight linearly behind the surface, to '
                                    '0 at the truncation distance (voxblox\'s '
                                    'use_weight_dropoff)', choices=(True, False))
-    free_space_carving: bool = setting(True, 'A voxel seen through (more than the truncation '
-                                       'distance in front of the measured surface) loses '
-                                       'half its weight before the update: a surface that '
-                                       'moved away leaves within a few frames',
+    free_space_carving: bool = setting(True, 'A voxel seen through (more than twice the '
+                                       'truncation distance in front of the measured '
+                                       'surface) loses half its weight before the update: a '
+                                       'surface that moved away leaves within a few frames',
                                        choices=(True, False))
     decay_factor: float = setting(1.0, 'Every voxel\'s weight is multiplied by this at each '
                                   'frame; a voxel below min_weight is forgotten (1: no '

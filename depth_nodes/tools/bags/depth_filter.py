@@ -47,17 +47,20 @@ __all__ = ['BUNDLED', 'PRESETS', 'STRADDLING', 'config_from_metadata', 'frame_me
 
 #: The presets (320 x 240, 30 frames/s, 12 frames: 0.4 s), and three for volumetric fusion
 #: (a TSDF's truth is the scene's surface: depth_nodes.sim.depth_sequence.scene_at):
-#: depth_orbit at 640 x 480 with a RealSense D435's 50 mm baseline (2 x 2 rays a pixel:
-#: the 320 x 240 presets' 4 x 4 per degree), depth_object_leaves, and depth_long, 10 s
-#: through a room (2 x 2 rays a pixel: 300 frames in a quarter of the time).
+#: depth_orbit: 20 frames at 640 x 480 around the scene, noise 0.0015 Z^2 (a 50 mm baseline,
+#: 0.0384 px of disparity noise: the depth camera of the fusion issue's Open3D figures;
+#: 2 x 2 rays a pixel, the 320 x 240 presets' 4 x 4 per degree), depth_object_leaves, and
+#: depth_long, 10 s through a room (2 x 2 rays a pixel: 300 frames in a quarter of the
+#: time).
 PRESETS: dict[str, DepthSequenceConfig] = {
     'depth_static': DepthSequenceConfig(kind='static', n_frames=12),
     'depth_moving_camera': DepthSequenceConfig(kind='moving_camera', n_frames=12),
     'depth_moving_object': DepthSequenceConfig(kind='moving_object', n_frames=12),
     'depth_tof_static': DepthSequenceConfig(kind='static', n_frames=12, noise='tof',
                                             left_band=0.0),
-    'depth_orbit': DepthSequenceConfig(kind='orbit', width=640, height=480, n_frames=30,
-                                       orbit_deg=40.0, baseline_m=0.05, supersample=2),
+    'depth_orbit': DepthSequenceConfig(kind='orbit', width=640, height=480, n_frames=20,
+                                       orbit_deg=40.0, baseline_m=0.05, disparity_sigma=0.0384,
+                                       supersample=2),
     'depth_object_leaves': DepthSequenceConfig(kind='object_leaves', n_frames=20),
     'depth_long': DepthSequenceConfig(kind='long', n_frames=300, step_m=0.02, supersample=2),
 }

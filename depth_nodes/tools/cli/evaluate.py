@@ -26,8 +26,10 @@ from depth_nodes.errors import ArgumentError, BagError, DepthNodesError
 from depth_nodes.tools import signals
 from depth_nodes.tools.evaluation.depth_filter_stages import compare, read_sequence
 from depth_nodes.tools.evaluation.evaluate import evaluate_bag
+from depth_nodes.tools.evaluation.fusion import evaluate_fusion_bag
 from depth_nodes.tools.evaluation.kinds import (
     DEPTH_FILTER,
+    FUSION,
     KINDS,
     MULTIVIEW,
     STEREO,
@@ -120,6 +122,19 @@ OPTIONS = (
            {'type': int, 'metavar': 'N'}),
     Option(('--object-threshold',), {VIEWS: 20.0}, 'pixels brighter than this are the object, '
            'for its coverage (default 20)', {'type': float, 'metavar': 'GREY'}),
+    Option(('--voxel-size',), {FUSION: 0.02}, "the voxel size tsdf_fusion ran with, metres "
+           "(default 0.02, config/fusion_pipeline.yaml's): the unit of the errors, and "
+           "Open3D's", {'type': float, 'metavar': 'M'}),
+    Option(('--truncation',), {FUSION: 4.0}, 'its truncation_distance, voxels (default 4), '
+           "for Open3D's", {'type': float, 'metavar': 'VOXELS'}),
+    Option(('--max-depth',), {FUSION: 5.0}, 'its max_integration_distance, metres (default 5), '
+           "for Open3D's", {'type': float, 'metavar': 'M'}),
+    Option(('--open3d',), {FUSION: False}, "also fuse the same depth at the true poses with "
+           "Open3D's VoxelBlockGrid and score its mesh the same way (the open3d extra: pip "
+           "install .[open3d])", {'action': 'store_true'}),
+    Option(('--fused-depth',), {FUSION: None}, 'the depth topic tsdf_fusion fused (default: '
+           '/camera/filtered/image_rect, /stereo/depth or /camera/depth/image_rect_raw, the '
+           'first the bag has)', {'metavar': 'TOPIC'}),
 )
 
 
@@ -283,7 +298,17 @@ def _depth_filter(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fusion(args: argparse.Namespace) -> int:
+    if not args.voxel_size > 0 or not args.truncation > 0:
+        raise ArgumentError('--voxel-size and --truncation must be positive')
+    report = evaluate_fusion_bag(args.bag, voxel=args.voxel_size, truncation=args.truncation,
+                                 max_depth=args.max_depth, open3d=args.open3d, depth_topic=args.fused_depth,
+                                 on_stage=lambda name: print(f'  {name} ...', file=sys.stderr))
+    print(report.format())
+    return 0
+
+
 #: The scorer of each kind but stereo, which draws its own previews.
 SCORERS: dict[Kind, Callable[[argparse.Namespace], int]] = {
     MULTIVIEW: _multiview, VIEWS: _views, STRUCTURED_LIGHT: _structured_light, TOF: _tof,
-    DEPTH_FILTER: _depth_filter}
+    DEPTH_FILTER: _depth_filter, FUSION: _fusion}
