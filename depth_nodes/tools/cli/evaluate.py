@@ -302,7 +302,8 @@ def _fusion(args: argparse.Namespace) -> int:
     if not args.voxel_size > 0 or not args.truncation > 0:
         raise ArgumentError('--voxel-size and --truncation must be positive')
     report = evaluate_fusion_bag(args.bag, voxel=args.voxel_size, truncation=args.truncation,
-                                 max_depth=args.max_depth, open3d=args.open3d, depth_topic=args.fused_depth,
+                                 max_depth=args.max_depth, open3d=args.open3d,
+                                 depth_topic=args.fused_depth,
                                  on_stage=lambda name: print(f'  {name} ...', file=sys.stderr))
     print(report.format())
     return 0

@@ -114,13 +114,13 @@ def final_frames(config: DepthSequenceConfig) -> range:
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _nearest(points: F64, cells: NDArray[np.int64], order: NDArray[np.int64], vertices: F64, origin: F64, size: float,
-             dims: NDArray[np.int64], cap: float, out: F64) -> None:
+def _nearest(points: F64, cells: NDArray[np.int64], order: NDArray[np.int64], vertices: F64,
+             origin: F64, size: float, dims: NDArray[np.int64], cap: float, out: F64) -> None:
     for n in numba.prange(points.shape[0]):
         best = cap * cap
         c = np.empty(3, np.int64)
         for m in range(3):
-            c[m] = int(math.floor((points[n, m] - origin[m]) / size))
+            c[m] = math.floor((points[n, m] - origin[m]) / size)
         for dz in range(-1, 2):
             for dy in range(-1, 2):
                 for dx in range(-1, 2):

@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from depth_nodes.tools.bags import depth_filter, generate, multiview, structured_light, tof
 from depth_nodes.ros.serialized import MARKER_ARRAY
+from depth_nodes.tools.bags import depth_filter, generate, multiview, structured_light, tof
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.bags.views import VIEWS_KEY
 from depth_nodes.tools.evaluation.evaluate import DISPARITY, GT_SUFFIX
