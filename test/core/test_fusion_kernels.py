@@ -22,7 +22,12 @@ from reference.fusion import (
 from depth_nodes.core.fusion import TsdfParams, TsdfVolume, block_meshes
 from depth_nodes.core.fusion.blocks import BlockTable, coords_keys, key_coords
 from depth_nodes.core.fusion.esdf import esdf_distance
-from depth_nodes.core.fusion.integrate import touch_samples, touched_keys, visible_blocks
+from depth_nodes.core.fusion.integrate import (
+    touch_samples,
+    touch_stride,
+    touched_keys,
+    visible_blocks,
+)
 from depth_nodes.core.geometry import Intrinsics, Pose, quaternion_from_rpy, rotation_matrix
 
 pytestmark = pytest.mark.kernels
@@ -68,11 +73,23 @@ def test_touched_blocks_are_the_reference_s() -> None:
     keys = touched_keys(depth, camera.vector, pose.rotation, pose.position, voxel=voxel,
                         block=block, truncation=trunc, min_depth=1.1, max_depth=3.0,
                         buffer=scratch)
+    stride = touch_stride(voxel, camera.vector, 3.0)
+    assert stride == 1  # 64 px wide: no ray left out ...
     expected = touched_blocks_reference(depth, camera, pose, voxel=voxel, block=block,
                                         truncation=trunc, min_depth=1.1, max_depth=3.0,
-                                        samples=samples)
+                                        samples=samples, stride=stride)
     assert {tuple(c) for c in key_coords(keys).tolist()} == expected
     assert len(keys) == len(np.unique(keys))
+    # ... and a coarser voxel casts every other ray
+    far = camera.fx * 0.12 / 2
+    assert touch_stride(0.12, camera.vector, far) == 2
+    keys = touched_keys(depth, camera.vector, pose.rotation, pose.position, voxel=0.12,
+                        block=block, truncation=trunc, min_depth=0.1, max_depth=far,
+                        buffer=scratch)
+    expected = touched_blocks_reference(depth, camera, pose, voxel=0.12, block=block,
+                                        truncation=trunc, min_depth=0.1, max_depth=far,
+                                        samples=touch_samples(0.12, block, trunc), stride=2)
+    assert {tuple(c) for c in key_coords(keys).tolist()} == expected
 
 
 @pytest.mark.parametrize('mode', ['constant', 'inverse_square', 'sigma', 'confidence'])

@@ -19,13 +19,14 @@ F32 = NDArray[np.float32]
 
 def touched_blocks_reference(depth: F32, camera: Intrinsics, pose: Pose, *, voxel: float,
                              block: int, truncation: float, min_depth: float,
-                             max_depth: float, samples: int) -> set[tuple[int, int, int]]:
-    """The blocks of the voxels nearest ``samples`` points along each pixel's ray from
-    ``D - T`` to ``D + T``."""
+                             max_depth: float, samples: int,
+                             stride: int) -> set[tuple[int, int, int]]:
+    """The blocks of the voxels nearest ``samples`` points along the ray of every
+    ``stride``-th pixel from ``D - T`` to ``D + T``."""
     out = set()
     step = 2.0 * truncation / (samples - 1)
-    for y in range(depth.shape[0]):
-        for x in range(depth.shape[1]):
+    for y in range(0, depth.shape[0], stride):
+        for x in range(0, depth.shape[1], stride):
             d = float(depth[y, x])
             if not d > 0 or d < min_depth or d > max_depth:
                 continue
@@ -39,20 +40,12 @@ def touched_blocks_reference(depth: F32, camera: Intrinsics, pose: Pose, *, voxe
     return out
 
 
-def measured_reference(depth: F32, u: float, v: float, spread: float) -> tuple[float, int, int]:
-    """The depth at image point (u, v), as the kernel reads it."""
+def measured_reference(depth: F32, u: float, v: float) -> tuple[float, int, int]:
+    """The depth at image point (u, v), as the kernel reads it: the nearest pixel's."""
     h, w = depth.shape
     xn, yn = math.floor(u + 0.5), math.floor(v + 0.5)
     if not (0 <= xn < w and 0 <= yn < h):
         return math.nan, -1, -1
-    x0, y0 = math.floor(u), math.floor(v)
-    if x0 >= 0 and y0 >= 0 and x0 + 1 < w and y0 + 1 < h:
-        four = [float(depth[y0 + j, x0 + i]) for j in (0, 1) for i in (0, 1)]
-        if all(d > 0 for d in four) and max(four) - min(four) <= spread:
-            fu, fv = u - x0, v - y0
-            top = four[0] + (four[1] - four[0]) * fu
-            bottom = four[2] + (four[3] - four[2]) * fu
-            return top + (bottom - top) * fv, xn, yn
     d = float(depth[yn, xn])
     return (d, xn, yn) if d > 0 else (math.nan, xn, yn)
 
@@ -76,7 +69,7 @@ def integrate_reference(volume: TsdfVolume, slots: Any, depth: F32, camera: Intr
                         continue
                     u = camera.fx * x / z + camera.cx
                     v = camera.fy * y / z + camera.cy
-                    d, xn, yn = measured_reference(depth, u, v, 0.5 * trunc)
+                    d, xn, yn = measured_reference(depth, u, v)
                     if not d > 0 or d < p.min_integration_distance or \
                             d > p.max_integration_distance:
                         continue
@@ -153,6 +146,8 @@ def site_distance_reference(volume: TsdfVolume, point: Any, max_distance: float)
     value, weight = _voxel(volume, g)  # type: ignore[arg-type]
     if not weight > p.min_weight:
         return math.nan
+    if abs(value * trunc) <= s:
+        return value * trunc  # a site: its own value
     best = max_distance
     for slot in volume.slots():
         for e in range(bs ** 3):
@@ -164,5 +159,5 @@ def site_distance_reference(volume: TsdfVolume, point: Any, max_distance: float)
             local = np.array([e % bs, (e // bs) % bs, e // (bs * bs)])
             centre = (volume.coords[slot] * bs + local) * s
             d = float(np.linalg.norm(centre - np.asarray(point)))
-            best = min(best, d if d > 0 else abs(sdf))
+            best = min(best, d)
     return -best if value < 0 else best

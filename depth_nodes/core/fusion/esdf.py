@@ -213,7 +213,12 @@ def _distances(points: F64, coords: I32, tsdf: F32, weight: F32, table_keys: I64
         if not weight[own, e] > min_weight:
             out[n] = math.nan
             continue
-        sign = -1.0 if tsdf[own, e] < 0.0 else 1.0
+        own_sdf = tsdf[own, e] * truncation
+        if abs(own_sdf) <= voxel:
+            # a site: its own value, as the slice's
+            out[n] = own_sdf
+            continue
+        sign = -1.0 if own_sdf < 0.0 else 1.0
         best = max_distance
         for dk in range(-reach, reach + 1):
             for dj in range(-reach, reach + 1):
@@ -235,8 +240,6 @@ def _distances(points: F64, coords: I32, tsdf: F32, weight: F32, table_keys: I64
                         dy = (j * block + b) * voxel - points[n, 1]
                         dz = (k * block + c) * voxel - points[n, 2]
                         d = math.sqrt(dx * dx + dy * dy + dz * dz)
-                        if d == 0.0:
-                            d = abs(sdf)
                         if d < best:
                             best = d
         out[n] = sign * best
