@@ -83,7 +83,8 @@ print(json.dumps(out))
 MINIMAL = {'generate': ['out'], 'process': ['in', 'out'], 'convert': ['in', 'out'],
            'import-pair': ['l.png', 'r.png', 'out'], 'import-views': ['par.txt', 'out'],
            'pipeline': [], 'play': ['bag'],
-           'record': ['out', '--topics', '/a'], 'reindex': ['bag'], 'param': ['list'],
+           'record': ['out', '--topics', '/a'], 'export-mesh': ['bag', 'm.ply'],
+           'reindex': ['bag'], 'param': ['list'],
            'node': ['list'], 'topic': ['list'], 'diag': [], 'eval': ['bag'],
            'eval-sl': ['bag'], 'eval-tof': ['bag'], 'eval-depth-filter': ['bag'],
            'bench': ['sgm'], 'train-cost': ['w.npz'], 'train-confidence': ['c.npz']}
@@ -179,7 +180,7 @@ def test_bench_without_a_stage_names_them() -> None:
     with pytest.raises(ConfigError) as caught:
         bench_cli.run(_bench())
     assert str(caught.value) == ('bench needs a stage (rectify, sgm, cross_check, point_cloud, '
-                                 'multiview, structured_light, tof, depth_filter, soak, '
+                                 'multiview, structured_light, tof, depth_filter, fusion, soak, '
                                  'live)')
 
 

@@ -29,6 +29,7 @@ from depth_nodes.tools.evaluation.depth_filter_stages import compare, read_seque
 from depth_nodes.tools.evaluation.evaluate import evaluate_bag
 from depth_nodes.tools.evaluation.kinds import (
     DEPTH_FILTER,
+    FUSION,
     KINDS,
     MULTIVIEW,
     STEREO,
@@ -60,9 +61,23 @@ def _tagged(path: Path, key: str | None, *, disparity_gt: bool = False) -> Path:
     return path
 
 
-@pytest.mark.parametrize('kind', KINDS, ids=[k.name for k in KINDS])
+#: The kinds told by their metadata (a fused bag is told by its mesh topic's type).
+TAGGED = [kind for kind in KINDS if kind is not FUSION]
+
+
+@pytest.mark.parametrize('kind', TAGGED, ids=[k.name for k in TAGGED])
 def test_the_metadata_tells_the_kind(tmp_path: Path, kind: Kind) -> None:
     assert bag_kind(_tagged(tmp_path / 'bag', kind.key)) is kind
+
+
+def test_a_mesh_topic_tells_a_fused_bag_whatever_the_metadata(tmp_path: Path) -> None:
+    from depth_nodes.ros.serialized import marker_array
+    path = tmp_path / 'fused'
+    with BagWriter(path) as writer:
+        writer.set_custom_data(generate.CONFIG_KEY, '{}')
+        mesh = marker_array((0, 1), 'map', 'mesh', [], (1.0, 1.0, 1.0, 1.0))
+        writer.write('/mesh', mesh.data, 1, msgtype=mesh.msgtype)
+    assert bag_kind(path) is FUSION
 
 
 def test_the_keys_are_those_the_bags_are_written_with() -> None:
@@ -90,8 +105,9 @@ def test_a_bag_of_no_kind_is_a_one_line_error_saying_what_was_looked_for(
                            'against: cannot tell its kind (looked for a stereo ground truth, '
                            '…/left/disparity_gt of type stereo_msgs/msg/DisparityImage, and '
                            'the metadata of a generated or imported bag, ')
-    for kind in KINDS:
+    for kind in TAGGED:
         assert f'{kind.key}: {kind.name}' in line
+    assert f'a mesh ({FUSION.key})' in line
     assert line.endswith('--previews DIR draws its disparity, depth and confidence instead')
     drawn = run_cli(['eval', str(bag), '--previews', str(tmp_path / 'png'), '--threshold',
                      '3'])
