@@ -17,8 +17,9 @@ from typing import Any, NoReturn
 import cv2
 import numba
 
-from depth_nodes.errors import ConfigError
+from depth_nodes.errors import ArgumentError, ConfigError
 from depth_nodes.tools.bench.depth_filter import bench_depth_filter
+from depth_nodes.tools.bench.fusion import bench_fusion
 from depth_nodes.tools.bench.live import WATCH, bench_live
 from depth_nodes.tools.bench.multiview import bench_multiview
 from depth_nodes.tools.bench.nodes import bench_cross_check, bench_point_cloud
@@ -146,6 +147,26 @@ def _depth_filter(args: argparse.Namespace) -> str:
                               busy=args.busy).format()
 
 
+def _fusion_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--frames', type=int, default=12,
+                        help='frames of the circling depth camera (median of all but the '
+                        'first); default 12')
+    parser.add_argument('--size', default='640x480', metavar='WxH',
+                        help='frame size (default 640x480)')
+    parser.add_argument('--busy', type=int, default=0, metavar='N',
+                        help='time with N busy-loop processes beside it (default 0)')
+    parser.add_argument('--no-open3d', action='store_true',
+                        help="skip Open3D's VoxelBlockGrid (without the open3d extra it is "
+                        'skipped, and the report says so)')
+
+
+def _fusion(args: argparse.Namespace) -> str:
+    if args.frames < 2:
+        raise ArgumentError('--frames must be at least 2 (the first is not timed)')
+    return bench_fusion(size=frame_size(args.size), frames=args.frames, busy=args.busy,
+                        open3d=not args.no_open3d).format()
+
+
 def _graph_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--rate', type=float, default=10.0,
                         help='frames per second to publish (default 10)')
@@ -212,6 +233,9 @@ STAGES = {stage.name: stage for stage in (
     Stage('depth_filter', "the depth filter's stages on one core, beside librealsense's "
           'filters on the same frames', _depth_filter_arguments, _depth_filter,
           in_process=False),
+    Stage('fusion', 'the TSDF volume at 5 and 2 cm, one and two cores: integration, mesh, '
+          "slice and memory, beside Open3D's VoxelBlockGrid on the same frames",
+          _fusion_arguments, _fusion, in_process=False),
     Stage('soak', 'the stereo graph fed for --duration s at --rate, P2 changed every '
           '--tune-every s: losses, memory, parameter answers', _soak_arguments, _soak,
           in_process=False),
