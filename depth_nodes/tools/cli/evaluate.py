@@ -128,7 +128,7 @@ OPTIONS = (
     Option(('--truncation',), {FUSION: 4.0}, 'its truncation_distance, voxels (default 4), '
            "for Open3D's", {'type': float, 'metavar': 'VOXELS'}),
     Option(('--max-depth',), {FUSION: 5.0}, 'its max_integration_distance, metres (default 5), '
-           "for Open3D's", {'type': float, 'metavar': 'M'}),
+           "for Open3D's and the surface completeness counts", {'type': float, 'metavar': 'M'}),
     Option(('--open3d',), {FUSION: False}, "also fuse the same depth at the true poses with "
            "Open3D's VoxelBlockGrid and score its mesh the same way (the open3d extra: pip "
            "install .[open3d])", {'action': 'store_true'}),

@@ -6,7 +6,8 @@ same depth at the same poses when asked.
 * accuracy: the distance of each mesh vertex to the true surface, median and 90th
   percentile;
 * completeness: the share of the true surface seen by the camera (the exact depth of every
-  4th pixel of the frames whose scene is the final one, back-projected at the true poses)
+  4th pixel of the frames whose scene is the final one, up to the fusion's
+  ``max_integration_distance``, back-projected at the true poses)
   that lies within two voxels of a mesh vertex (a vertex, not a triangle: a slight
   underestimate);
 * the slice: its distances against the true distance to the surface, where that is below
@@ -213,7 +214,7 @@ def _frames(path: str | Path, config: DepthSequenceConfig, prefix: str,
     return frames, depth_topic
 
 
-def _samples(frames: _Frames, config: DepthSequenceConfig) -> F64:
+def _samples(frames: _Frames, config: DepthSequenceConfig, max_depth: float) -> F64:
     camera = intrinsics(frames.camera)
     ys, xs = np.mgrid[0:camera.height:SAMPLE_STRIDE, 0:camera.width:SAMPLE_STRIDE]
     rays = np.stack([(xs - camera.cx) / camera.fx, (ys - camera.cy) / camera.fy,
@@ -223,7 +224,7 @@ def _samples(frames: _Frames, config: DepthSequenceConfig) -> F64:
         if i not in frames.truth:
             continue
         z = frames.truth[i][::SAMPLE_STRIDE, ::SAMPLE_STRIDE].reshape(-1).astype(np.float64)
-        seen = np.isfinite(z)
+        seen = np.isfinite(z) & (z <= max_depth)
         pose = pose_at(config, i)
         out.append((rays[seen] * z[seen, None]) @ pose.rotation.T + pose.position)
     return np.concatenate(out) if out else np.empty((0, 3))
@@ -260,7 +261,8 @@ def evaluate_fusion_bag(path: str | Path, *, voxel: float, truncation: float,
         BagError: Not a fused bag of a simulated sequence.
         ConfigError: ``open3d`` without the open3d extra.
 
-    ``max_depth``: Open3D's depth_max (tsdf_fusion's max_integration_distance).
+    ``max_depth``: tsdf_fusion's max_integration_distance: Open3D's depth_max, and the
+    farthest true surface that counts for completeness.
     """
     with BagReader(path) as reader:
         custom = dict(reader.custom_data)
@@ -271,7 +273,7 @@ def evaluate_fusion_bag(path: str | Path, *, voxel: float, truncation: float,
     mesh = final_mesh(path, None)
     scene = scene_at(config, config.n_frames - 1)
     frames, fused = _frames(path, config, prefix, depth_topic)
-    samples = _samples(frames, config)
+    samples = _samples(frames, config, max_depth)
     report = FusionReport(str(path), config.kind, len(frames.depth), voxel)
     report.rows.append(score_mesh(f'tsdf_fusion ({mesh.topic})', mesh.vertices,
                                   len(mesh.faces), scene, samples, voxel))
