@@ -35,7 +35,6 @@ from depth_nodes.nodes.registry import NodeEntry
 from depth_nodes.ros.camera_info import model_to_camera_info
 from depth_nodes.ros.disparity import build_disparity
 from depth_nodes.ros.image import array_to_image
-from depth_nodes.ros.serialized import Serialized
 from depth_nodes.sim import StereoSimConfig, simulate_stereo
 from depth_nodes.sim.projector import ProjectorCameraSim, ProjectorSimConfig
 from depth_nodes.sim.tof import ToFSimConfig, simulate_tof
@@ -236,8 +235,9 @@ def make_node(entry: NodeEntry, context: Context) -> Any:
     node = resolve_plugin(entry.name)(context=context,
                                       parameter_overrides=PARAMETERS.get(entry.name, []))
     node.outbox = []
-    node.sink = lambda topic, msg: node.outbox.append(
-        (topic, msg.message() if isinstance(msg, Serialized) else msg))
+    # a Serialized output (tsdf_fusion's mesh) stays bytes: deserialising its thousands of
+    # points into rclpy objects would cost more than the node did
+    node.sink = lambda topic, msg: node.outbox.append((topic, msg))
     node.routes = {spec.topic.lstrip('/'): spec.callback for spec in node.inputs}
     return node
 

@@ -36,10 +36,11 @@ TRIANGLE_LIST, ADD, DELETE, DELETEALL = 11, 0, 2, 3
 @dataclass(frozen=True)
 class Serialized:
     """A message as CDR bytes (encapsulation header included), with its type name
-    (``package/msg/Name``)."""
+    (``package/msg/Name``) and the stamp of its header(s), ns (None: none)."""
 
     data: bytes
     msgtype: str
+    stamp_ns: int | None = None
 
     def message(self) -> Any:
         """The message as an rclpy object."""
@@ -128,7 +129,7 @@ def marker_array(stamp: tuple[int, int], frame_id: str, namespace: str,
         out.string('')  # mesh_file.filename
         out.pack('I', 0, align=4)  # mesh_file.data
         out.pack('?', False, align=1)  # mesh_use_embedded_materials
-    return Serialized(out.bytes(), MARKER_ARRAY)
+    return Serialized(out.bytes(), MARKER_ARRAY, stamp[0] * 10**9 + stamp[1])
 
 
 @dataclass

@@ -56,6 +56,7 @@ from rclpy.parameter import Parameter
 
 from depth_nodes.graph.description import resolve_plugin
 from depth_nodes.nodes.registry import NODES, NodeEntry
+from depth_nodes.ros.serialized import Serialized
 from depth_nodes.tools.bags.io import serialize
 
 # a numpy RuntimeWarning (overflow, invalid value) in a node is an error here: a hostile
@@ -75,8 +76,9 @@ Frame = list[dict[str, Any]]
 
 
 def _stamp_ns(msg: Any) -> int | None:
-    markers = getattr(msg, 'markers', None)  # a MarkerArray: its markers' stamp
-    header = getattr(msg, 'header', None) if not markers else markers[-1].header
+    if isinstance(msg, Serialized):  # tsdf_fusion's MarkerArray, as CDR bytes
+        return msg.stamp_ns
+    header = getattr(msg, 'header', None)
     return None if header is None else header.stamp.sec * 10**9 + header.stamp.nanosec
 
 
@@ -149,7 +151,8 @@ def run(entry: NodeEntry, context: Context, frame: Frame | None) -> Outcome:
 
 def _outputs(out: list[tuple[str, Any]]) -> list[tuple[str, bytes]]:
     """The next valid frame's outputs (those stamped with it), serialised."""
-    return [(topic, serialize(msg)) for topic, msg in out if _stamp_ns(msg) == AFTER]
+    return [(topic, msg.data if isinstance(msg, Serialized) else serialize(msg))
+            for topic, msg in out if _stamp_ns(msg) == AFTER]
 
 
 def verdict(kind: Kind, outcome: Outcome, expected: list[tuple[str, bytes]], *,

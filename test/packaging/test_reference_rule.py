@@ -56,7 +56,8 @@ def test_each_reference_module_mirrors_an_area_of_the_package() -> None:
     modules = sorted(p for p in REFERENCE_DIR.glob('*.py') if p.name != '__init__.py')
     assert len(modules) >= 8
     for path in modules:
-        areas = [REPO / 'depth_nodes' / layer / path.stem for layer in ('core', 'ros')]
+        areas = [REPO / 'depth_nodes' / layer / path.stem
+                 for layer in ('core', 'ros', 'tools/evaluation')]
         assert any(a.is_dir() or a.with_suffix('.py').is_file() for a in areas), path.name
 
 

@@ -152,7 +152,8 @@ class TestKnownShapes:
                        math.floor(min(v_near[1], v_far[1]) - 1) + 1)
         both = image[np.ix_(ys, xs)]
         assert both.size > 100
-        assert (both[..., 0] > 0).all() and (both[..., 2] == 0).all()
+        assert (both[..., 0] > 0).all()
+        assert (both[..., 2] == 0).all()
         # and the far one where it shows alone
         assert (image[ys[0]:ys[-1], math.ceil(u_near[1] + 1):math.floor(u_far[1] - 1), 2]
                 > 0).all()
@@ -265,8 +266,10 @@ class TestAutomaticView:
         assert (camera.width, camera.height) == size
         uvz = _project(v, pose, camera)
         assert (uvz[:, 2] > 0).all()
-        assert (uvz[:, 0] >= 0).all() and (uvz[:, 0] <= width - 1).all()
-        assert (uvz[:, 1] >= 0).all() and (uvz[:, 1] <= height - 1).all()
+        assert (uvz[:, 0] >= 0).all()
+        assert (uvz[:, 0] <= width - 1).all()
+        assert (uvz[:, 1] >= 0).all()
+        assert (uvz[:, 1] <= height - 1).all()
         # from above: the camera's direction from the centre rises AUTO_ELEVATION_DEG
         centre = (v.min(axis=0).astype(float) + v.max(axis=0)) / 2.0
         towards = (pose.position - centre) / np.linalg.norm(pose.position - centre)
@@ -277,8 +280,10 @@ class TestAutomaticView:
                                                          view=(pose, camera)))
         covered = _covered(image)
         assert covered.any()
-        assert not (covered[0].any() or covered[-1].any() or covered[:, 0].any()
-                    or covered[:, -1].any())
+        assert not (covered[0].any())
+        assert not (covered[-1].any())
+        assert not (covered[:, 0].any())
+        assert not (covered[:, -1].any())
 
     @pytest.mark.parametrize('side', [-1.0, 1.0])
     def test_it_looks_from_the_side_the_mesh_faces(self, side: float) -> None:
