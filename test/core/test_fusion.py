@@ -168,17 +168,21 @@ def test_fused_depth_gives_a_mesh_within_a_tenth_of_a_voxel_and_sees_everything(
         seen.append(local @ pose.rotation.T + pose.position)
     samples = np.concatenate(seen)
     samples = samples[np.abs(samples[:, 2] - WALL_Z) > 1e-6]  # the sphere: curved, hard
+    # 4000 of them at random: the share within two voxels to about +-0.2 % (one sigma)
+    samples = samples[np.random.default_rng(0).choice(len(samples), 4000, replace=False)]
     near = _nearest(samples, vertices)
     assert (near <= 2 * s).mean() >= 0.99
 
 
 def _nearest(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
-    """Distance from each point to the nearest vertex (brute force in chunks)."""
+    """Distance from each point to the nearest vertex (brute force in chunks:
+    |p - v|^2 = |p|^2 + |v|^2 - 2 p.v, one matrix product per chunk)."""
     out = np.empty(len(points))
-    for start in range(0, len(points), 256):
-        chunk = points[start:start + 256]
-        d = np.linalg.norm(chunk[:, None, :] - vertices[None, :, :], axis=2)
-        out[start:start + 256] = d.min(axis=1)
+    squared = (vertices * vertices).sum(axis=1)
+    for start in range(0, len(points), 512):
+        chunk = points[start:start + 512]
+        d2 = (chunk * chunk).sum(axis=1)[:, None] + squared[None, :] - 2.0 * chunk @ vertices.T
+        out[start:start + 512] = np.sqrt(np.maximum(d2.min(axis=1), 0.0))
     return out
 
 
