@@ -184,7 +184,7 @@ def test_a_ctrl_c_keeps_the_best_adapted_weights(tmp_path: Path) -> None:
     out = tmp_path / 'mine.npz'
     proc = subprocess.Popen(
         [sys.executable, '-m', 'depth_nodes.tools.cli', 'train-cost', '--adapt',
-         str(REPO / 'bags' / 'stereo_qvga_color'), '--out', str(out), '--steps', '100000',
+         str(REPO / 'bags' / 'stereo_qvga_color'), '--out', str(out), '--steps', '5000',
          '--frames', '1', '--disparities', '48'], cwd=REPO, stdout=subprocess.PIPE,
         stderr=subprocess.PIPE, text=True)
     try:
