@@ -111,15 +111,27 @@ def _facing_free_side(loop: list[int], negative: list[bool]) -> list[int]:
 
 
 CASES, CASE_TRIANGLES = _case_table()
+#: Triangles of each case (int64, as the kernels index with it).
+TRIANGLE_COUNTS = CASE_TRIANGLES.astype(np.int64)
 
 
 @numba.njit(cache=True, nogil=True)
 def _gather(slot: int, coords: I32, tsdf: F32, weight: F32, table_keys: I64,
-            table_slots: I32, block: int, values: F32, weights: F32) -> None:
+            table_slots: I32, block: int, min_weight: float, values: F32,
+            weights: F32) -> bool:
     """The block's voxels and one layer of the blocks after it, (B+1)^3 each (weight 0
-    where a neighbour is not allocated)."""
+    where a neighbour is not allocated); whether the observed ones change sign (else the
+    block has no triangle)."""
     n = block + 1
     i, j, k = coords[slot, 0], coords[slot, 1], coords[slot, 2]
+    # the block and its 7 neighbours after it, looked up once: sources[(kc * 2 + jb) * 2 + ia]
+    sources = np.empty(8, np.int64)
+    for m in range(8):
+        ia, jb, kc = m & 1, (m >> 1) & 1, m >> 2
+        sources[m] = slot if m == 0 else lookup(table_keys, table_slots,
+                                                block_key(i + ia, j + jb, k + kc))
+    negative = False
+    positive = False
     for c in range(n):
         kc = c // block
         for b in range(n):
@@ -127,89 +139,123 @@ def _gather(slot: int, coords: I32, tsdf: F32, weight: F32, table_keys: I64,
             for a in range(n):
                 ia = a // block
                 e = (c * n + b) * n + a
-                source = slot
-                if ia or jb or kc:
-                    source = lookup(table_keys, table_slots, block_key(i + ia, j + jb, k + kc))
+                source = sources[(kc * 2 + jb) * 2 + ia]
                 if source < 0:
                     values[e] = 0.0
                     weights[e] = 0.0
                 else:
                     f = ((c - kc * block) * block + (b - jb * block)) * block + (a - ia * block)
-                    values[e] = tsdf[source, f]
+                    value = tsdf[source, f]
+                    values[e] = value
                     weights[e] = weight[source, f]
+                    if weights[e] > min_weight:
+                        if value < 0.0:
+                            negative = True
+                        else:
+                            positive = True
+    return negative and positive
 
 
 @numba.njit(cache=True, nogil=True)
-def _block_triangles(slot: int, coords: I32, tsdf: F32, weight: F32, table_keys: I64,
-                     table_slots: I32, block: int, voxel: float, min_weight: float,
-                     out: F32, start: int, emit: bool) -> int:
-    """The triangles of one block's cubes: counted, or written as vertex rows from
-    ``out[3 start]``; returns how many."""
+def _block_cases(slot: int, coords: I32, tsdf: F32, weight: F32, table_keys: I64,
+                 table_slots: I32, block: int, min_weight: float, values: F32, weights: F32,
+                 cases: NDArray[np.uint8]) -> int:
+    """Each cube's case (0: no triangle, unobserved corners included) into ``cases``
+    (B^3, cube ``(c B + b) B + a``), from the block's gathered voxels; returns the block's
+    triangles."""
+    cases[:] = 0
+    if not _gather(slot, coords, tsdf, weight, table_keys, table_slots, block, min_weight,
+                   values, weights):
+        return 0
     n = block + 1
-    values = np.empty(n * n * n, np.float32)
-    weights = np.empty(n * n * n, np.float32)
-    _gather(slot, coords, tsdf, weight, table_keys, table_slots, block, values, weights)
+    count = 0
+    for c in range(block):
+        for b in range(block):
+            for a in range(block):
+                case = 0
+                for corner in range(8):
+                    e = ((c + CORNERS[corner, 2]) * n + b + CORNERS[corner, 1]) * n + a + \
+                        CORNERS[corner, 0]
+                    if not weights[e] > min_weight:
+                        case = 0
+                        break
+                    if values[e] < 0.0:
+                        case |= 1 << corner
+                if case == 255:
+                    case = 0
+                if case:
+                    cases[(c * block + b) * block + a] = case
+                    count += TRIANGLE_COUNTS[case]
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _emit_block(slot: int, coords: I32, block: int, voxel: float, values: F32,
+                cases: NDArray[np.uint8], out: F32, start: int) -> None:
+    """The triangles of the block's cubes with a case, as vertex rows from
+    ``out[3 start]``."""
+    n = block + 1
     f = np.empty(8, np.float64)
     crossing = np.empty((12, 3), np.float64)
     ox = coords[slot, 0] * block
     oy = coords[slot, 1] * block
     oz = coords[slot, 2] * block
     count = 0
-    for c in range(block):
-        for b in range(block):
-            for a in range(block):
-                seen = True
-                case = 0
-                for corner in range(8):
-                    e = ((c + CORNERS[corner, 2]) * n + b + CORNERS[corner, 1]) * n + a + \
-                        CORNERS[corner, 0]
-                    if not weights[e] > min_weight:
-                        seen = False
-                        break
-                    f[corner] = values[e]
-                    if values[e] < 0.0:
-                        case |= 1 << corner
-                if not seen or case == 0 or case == 255:
-                    continue
-                triangles = CASE_TRIANGLES[case]
-                if emit:
-                    for edge in range(12):
-                        lo, hi = EDGES[edge, 0], EDGES[edge, 1]
-                        if (f[lo] < 0.0) == (f[hi] < 0.0):
-                            continue
-                        t = f[lo] / (f[lo] - f[hi])
-                        crossing[edge, 0] = (ox + a + CORNERS[lo, 0] +
-                                             t * (CORNERS[hi, 0] - CORNERS[lo, 0])) * voxel
-                        crossing[edge, 1] = (oy + b + CORNERS[lo, 1] +
-                                             t * (CORNERS[hi, 1] - CORNERS[lo, 1])) * voxel
-                        crossing[edge, 2] = (oz + c + CORNERS[lo, 2] +
-                                             t * (CORNERS[hi, 2] - CORNERS[lo, 2])) * voxel
-                    row = 3 * (start + count)
-                    for m in range(3 * triangles):
-                        edge = CASES[case, m]
-                        for axis in range(3):
-                            out[row + m, axis] = crossing[edge, axis]
-                count += triangles
-    return count
+    for cube in range(block * block * block):
+        case = cases[cube]
+        if case == 0:
+            continue
+        a = cube % block
+        b = (cube // block) % block
+        c = cube // (block * block)
+        for corner in range(8):
+            f[corner] = values[((c + CORNERS[corner, 2]) * n + b + CORNERS[corner, 1]) * n +
+                               a + CORNERS[corner, 0]]
+        for edge in range(12):
+            lo, hi = EDGES[edge, 0], EDGES[edge, 1]
+            if (f[lo] < 0.0) == (f[hi] < 0.0):
+                continue
+            t = f[lo] / (f[lo] - f[hi])
+            crossing[edge, 0] = (ox + a + CORNERS[lo, 0] +
+                                 t * (CORNERS[hi, 0] - CORNERS[lo, 0])) * voxel
+            crossing[edge, 1] = (oy + b + CORNERS[lo, 1] +
+                                 t * (CORNERS[hi, 1] - CORNERS[lo, 1])) * voxel
+            crossing[edge, 2] = (oz + c + CORNERS[lo, 2] +
+                                 t * (CORNERS[hi, 2] - CORNERS[lo, 2])) * voxel
+        triangles = TRIANGLE_COUNTS[case]
+        row = 3 * (start + count)
+        for m in range(3 * triangles):
+            edge = CASES[case, m]
+            for axis in range(3):
+                out[row + m, axis] = crossing[edge, axis]
+        count += triangles
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _count_all(slots: I32, coords: I32, tsdf: F32, weight: F32, table_keys: I64,
-               table_slots: I32, block: int, voxel: float, min_weight: float,
-               counts: I64) -> None:
-    scratch = np.empty((0, 3), np.float32)
-    for n in numba.prange(len(slots)):
-        counts[n] = _block_triangles(slots[n], coords, tsdf, weight, table_keys, table_slots,
-                                     block, voxel, min_weight, scratch, 0, False)
+               table_slots: I32, block: int, min_weight: float, counts: I64,
+               cases: NDArray[np.uint8]) -> None:
+    n = block + 1
+    for m in numba.prange(len(slots)):
+        values = np.empty(n * n * n, np.float32)
+        weights = np.empty(n * n * n, np.float32)
+        counts[m] = _block_cases(slots[m], coords, tsdf, weight, table_keys, table_slots,
+                                 block, min_weight, values, weights, cases[m])
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _emit_all(slots: I32, coords: I32, tsdf: F32, weight: F32, table_keys: I64,
               table_slots: I32, block: int, voxel: float, min_weight: float, offsets: I64,
-              out: F32) -> None:
-    for n in numba.prange(len(slots)):
-        _block_triangles(slots[n], coords, tsdf, weight, table_keys, table_slots, block,
-                         voxel, min_weight, out, offsets[n], True)
+              cases: NDArray[np.uint8], out: F32) -> None:
+    n = block + 1
+    for m in numba.prange(len(slots)):
+        if offsets[m + 1] == offsets[m]:
+            continue
+        values = np.empty(n * n * n, np.float32)
+        weights = np.empty(n * n * n, np.float32)
+        _gather(slots[m], coords, tsdf, weight, table_keys, table_slots, block, min_weight,
+                values, weights)
+        _emit_block(slots[m], coords, block, voxel, values, cases[m], out, offsets[m])
 
 
 @dataclass
@@ -234,17 +280,19 @@ class BlockMeshes:
 
 
 def block_meshes(volume: TsdfVolume, slots: I32) -> BlockMeshes:
-    """The triangles of blocks ``slots`` of the volume (see the module notes)."""
+    """The triangles of blocks ``slots`` of the volume (see the module notes): each cube's
+    case in one pass, then the triangles of the cubes that have some."""
     p = volume.params
     slots = np.ascontiguousarray(slots, np.int32)
     args = (slots, volume.coords, volume.tsdf, volume.weight, volume.table.keys,
-            volume.table.slots, p.block_size, p.voxel_size, p.min_weight)
+            volume.table.slots, p.block_size)
     counts = np.zeros(len(slots), np.int64)
-    _count_all(*args, counts)
+    cases = np.empty((len(slots), p.block_size ** 3), np.uint8)
+    _count_all(*args, p.min_weight, counts, cases)
     offsets = np.zeros(len(slots) + 1, np.int64)
     np.cumsum(counts, out=offsets[1:])
     vertices = np.empty((3 * int(offsets[-1]), 3), np.float32)
-    _emit_all(*args, offsets, vertices)
+    _emit_all(*args, p.voxel_size, p.min_weight, offsets, cases, vertices)
     return BlockMeshes(slots, offsets, vertices)
 
 
@@ -255,7 +303,9 @@ def _block_crossings(slot: int, coords: I32, tsdf: F32, weight: F32, table_keys:
     n = block + 1
     values = np.empty(n * n * n, np.float32)
     weights = np.empty(n * n * n, np.float32)
-    _gather(slot, coords, tsdf, weight, table_keys, table_slots, block, values, weights)
+    if not _gather(slot, coords, tsdf, weight, table_keys, table_slots, block, min_weight,
+                   values, weights):
+        return 0
     ox = coords[slot, 0] * block
     oy = coords[slot, 1] * block
     oz = coords[slot, 2] * block
