@@ -9,7 +9,8 @@ element ``(c B + b) B + a`` of the block's arrays. A voxel is projected into the
 signed distance is the projective one, ``sdf = D - Z``: the depth of the nearest pixel
 minus the voxel's own (as Open3D's; reading the depth bilinearly within one surface cut the
 error on noise-free frames but not on noisy ones, and doubled the integration time). With
-``sdf`` below minus the truncation ``T`` the voxel is hidden and keeps its value; otherwise it takes ``min(1, sdf / T)`` with the observation's weight ``w``::
+``sdf`` below minus the truncation ``T`` the voxel is hidden and keeps its value;
+otherwise it takes ``min(1, sdf / T)`` with the observation's weight ``w``::
 
     value = (value * W + min(1, sdf / T) * w) / (W + w),   W = min(W + w, max_weight)
 
