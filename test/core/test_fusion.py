@@ -206,9 +206,14 @@ def test_sigma_weighting_trusts_the_less_noisy_measurements() -> None:
 
 
 # ------------------------------------------------------------------ dynamics
-def test_a_surface_that_leaves_is_carved_within_five_frames_and_a_still_one_stays() -> None:
+@pytest.mark.parametrize('max_depth', [5.0, 2.2], ids=['wall_fused', 'wall_too_far'])
+def test_a_surface_that_leaves_is_carved_within_five_frames_and_a_still_one_stays(
+        max_depth: float) -> None:
+    """The wall within max_integration_distance, or beyond it: then its depth makes no
+    surface but still clears the space before it."""
     s = 0.04
-    volume = TsdfVolume(TsdfParams(voxel_size=s, max_weight=50.0))
+    volume = TsdfVolume(TsdfParams(voxel_size=s, max_weight=50.0,
+                                   max_integration_distance=max_depth))
     layer = MeshLayer()
     pose = look_at(np.array([0.1, 0.0, 0.0]), CENTRE)
     for _ in range(30):  # the sphere seen long enough to reach max_weight
@@ -229,9 +234,11 @@ def test_a_surface_that_leaves_is_carved_within_five_frames_and_a_still_one_stay
             break
     assert gone_after is not None
     assert gone_after <= 5
-    # the wall behind stays, as it was never seen through
     wall = np.abs(layer.soup()[:, 2] - WALL_Z) < s
-    assert wall.sum() > 1000
+    if max_depth > WALL_Z:  # the wall behind stays, as it was never seen through
+        assert wall.sum() > 1000
+    else:  # nothing of the wall: it is past the limit
+        assert wall.sum() == 0
 
 
 def test_a_still_scene_keeps_its_surface_over_300_noisy_frames() -> None:

@@ -70,12 +70,14 @@ def integrate_reference(volume: TsdfVolume, slots: Any, depth: F32, camera: Intr
                     u = camera.fx * x / z + camera.cx
                     v = camera.fy * y / z + camera.cy
                     d, xn, yn = measured_reference(depth, u, v)
-                    if not d > 0 or d < p.min_integration_distance or \
-                            d > p.max_integration_distance:
+                    if not d > 0 or d < p.min_integration_distance or d == math.inf:
                         continue
                     sdf = d - z
                     if sdf < -trunc:
                         continue
+                    far = d > p.max_integration_distance
+                    if far and (z > p.max_integration_distance or sdf <= trunc):
+                        continue  # a far depth clears the free space before it only
                     if mode == 0:
                         obs = 1.0
                     elif mode == 1:

@@ -9,8 +9,11 @@ element ``(c B + b) B + a`` of the block's arrays. A voxel is projected into the
 signed distance is the projective one, ``sdf = D - Z``: the depth of the nearest pixel
 minus the voxel's own (as Open3D's; reading the depth bilinearly within one surface cut the
 error on noise-free frames but not on noisy ones, and doubled the integration time). With
-``sdf`` below minus the truncation ``T`` the voxel is hidden and keeps its value;
-otherwise it takes ``min(1, sdf / T)`` with the observation's weight ``w``::
+``sdf`` below minus the truncation ``T`` the voxel is hidden and keeps its value. A depth
+beyond ``max_integration_distance`` makes no surface but still clears: voxels nearer than
+that limit and more than ``T`` before the depth are updated as free space (voxblox's
+clearing rays), so an object that leaves before a far background is carved. Otherwise a
+voxel takes ``min(1, sdf / T)`` with the observation's weight ``w``::
 
     value = (value * W + min(1, sdf / T) * w) / (W + w),   W = min(W + w, max_weight)
 
@@ -218,10 +221,13 @@ def integrate_blocks(depth: F32, aux: F32, mode: int, cam: F64, rotation: F64,
                     if xn < 0 or yn < 0 or xn >= width or yn >= height:
                         continue
                     d = depth[yn, xn]
-                    if not (d > 0.0) or d < min_depth or d > max_depth:
+                    if not (d > 0.0) or d < min_depth or d == math.inf:
                         continue
                     sdf = d - z
                     if sdf < -truncation:
+                        continue
+                    # a depth past max_depth only clears the free space before it
+                    if d > max_depth and (z > max_depth or sdf <= truncation):
                         continue
                     if mode == 0:
                         obs = 1.0
