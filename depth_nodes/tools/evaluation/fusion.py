@@ -12,6 +12,10 @@ same depth at the same poses when asked.
   underestimate);
 * the slice: its distances against the true distance to the surface, where that is below
   the slice's cap.
+
+A fused bag of real views (`depth-nodes import-views ... --bbox`, then the multi-view
+graph and fusion) has no exact surface: the share of its mesh's vertices inside the
+object's bounding box is reported instead.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from depth_nodes.sim.scene import Scene
 from depth_nodes.tools.bags import depth_filter, fusion_stereo
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.bags.meshes import final_mesh
+from depth_nodes.tools.bags.views import VIEWS_KEY, views_info
 
 __all__ = ['FusionReport', 'MeshScore', 'evaluate_fusion_bag', 'nearest_distance',
            'score_mesh', 'sequence_of']
@@ -71,8 +76,15 @@ class FusionReport:
     voxel: float
     rows: list[MeshScore] = field(default_factory=list)
     slice_rows: list[tuple[str, int, float, float]] = field(default_factory=list)
+    #: Real views: the mesh's vertices, and how many lie inside the object's box.
+    inside: tuple[int, int] | None = None
 
     def format(self) -> str:
+        if self.inside is not None:
+            total, inside = self.inside
+            return (f'{self.bag}: real views, {self.frames} depth frames fused; mesh vertices '
+                    f"inside the object's bounding box: {inside} of {total} "
+                    f'({inside / max(total, 1):.2%})')
         lines = [f'{self.bag}: {self.kind}, {self.frames} frames, voxel {self.voxel * 100:g} '
                  'cm; mesh vertices against the exact surface',
                  f'{"mesh":40s} {"vertices":>9s} {"triangles":>10s} {"median":>9s} '
@@ -268,6 +280,8 @@ def evaluate_fusion_bag(path: str | Path, *, voxel: float, truncation: float,
         custom = dict(reader.custom_data)
         slices = [t for t, kind in reader.topics.items()
                   if kind == 'sensor_msgs/msg/PointCloud2' and t.endswith('esdf_slice')]
+    if VIEWS_KEY in custom:
+        return _views_report(path, custom, voxel)
     config, prefix = sequence_of(custom, path)
     on_stage('mesh')
     mesh = final_mesh(path, None)
@@ -290,6 +304,23 @@ def evaluate_fusion_bag(path: str | Path, *, voxel: float, truncation: float,
     for topic in slices:
         report.slice_rows.append(_slice_score(path, topic, scene))
     return report
+
+
+def _views_report(path: str | Path, custom: dict[str, str], voxel: float) -> FusionReport:
+    """A fused bag of real views: its mesh's vertices inside the object's box."""
+    info = views_info(custom, path)
+    if info.bbox is None:
+        raise BagError(f'{path}: real views imported without --bbox: nothing to score the '
+                       'mesh against')
+    mesh = final_mesh(path, None)
+    low, high = np.array(info.bbox[:3]), np.array(info.bbox[3:])
+    vertices = mesh.vertices.astype(np.float64)
+    inside = int(((vertices >= low) & (vertices <= high)).all(axis=1).sum())
+    with BagReader(path) as reader:
+        depth = next((t for t in reader.topics if t.endswith('/depth')), None)
+        count = sum(1 for _ in reader.messages([depth])) if depth else 0
+    return FusionReport(str(path), 'real views', count, voxel,
+                        inside=(len(vertices), inside))
 
 
 def _slice_score(path: str | Path, topic: str, scene: Scene) -> tuple[str, int, float, float]:
