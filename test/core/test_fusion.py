@@ -206,13 +206,15 @@ def test_sigma_weighting_trusts_the_less_noisy_measurements() -> None:
 
 
 # ------------------------------------------------------------------ dynamics
-@pytest.mark.parametrize('max_depth', [5.0, 2.2], ids=['wall_fused', 'wall_too_far'])
+@pytest.mark.parametrize(('max_depth', 'allow_clear'), [(5.0, True), (2.2, True), (2.2, False)],
+                         ids=['wall_fused', 'wall_too_far', 'wall_too_far_no_clearing'])
 def test_a_surface_that_leaves_is_carved_within_five_frames_and_a_still_one_stays(
-        max_depth: float) -> None:
+        max_depth: float, allow_clear: bool) -> None:
     """The wall within max_integration_distance, or beyond it: then its depth makes no
-    surface but still clears the space before it."""
+    surface but still clears the space before it (allow_clear; without it, nothing
+    clears the sphere)."""
     s = 0.04
-    volume = TsdfVolume(TsdfParams(voxel_size=s, max_weight=50.0,
+    volume = TsdfVolume(TsdfParams(voxel_size=s, max_weight=50.0, allow_clear=allow_clear,
                                    max_integration_distance=max_depth))
     layer = MeshLayer()
     pose = look_at(np.array([0.1, 0.0, 0.0]), CENTRE)
@@ -232,6 +234,9 @@ def test_a_surface_that_leaves_is_carved_within_five_frames_and_a_still_one_stay
         if sphere_triangles() == 0:
             gone_after = frame
             break
+    if not allow_clear:
+        assert gone_after is None
+        return
     assert gone_after is not None
     assert gone_after <= 5
     wall = np.abs(layer.soup()[:, 2] - WALL_Z) < s

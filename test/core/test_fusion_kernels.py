@@ -170,6 +170,30 @@ def test_free_space_carving_and_drop_off_follow_the_reference() -> None:
     assert (volume.tsdf[through] > before[through]).all()
 
 
+@pytest.mark.parametrize('allow_clear', [True, False])
+def test_a_depth_past_the_limit_clears_as_the_reference_does(allow_clear: bool) -> None:
+    params = TsdfParams(voxel_size=0.04, truncation_distance=2.0, allow_clear=allow_clear,
+                        max_integration_distance=2.5)
+    volume = TsdfVolume(params)
+    reference = TsdfVolume(params)
+    pose = _pose(0, 0.0)
+    camera, depth = _scene(*SIZE, pose)
+    volume.integrate(depth, camera, pose)
+    _reference_frame(volume, reference, depth, camera, pose, None)
+    # the sphere gone, and what is behind it past max_integration_distance
+    beyond = np.where(depth < 1.5, 4.0, depth).astype(np.float32)
+    before = volume.tsdf.copy()
+    volume.integrate(beyond, camera, pose)
+    _reference_frame(volume, reference, beyond, camera, pose, None)
+    np.testing.assert_allclose(volume.tsdf, reference.tsdf, atol=1e-5)
+    np.testing.assert_allclose(volume.weight, reference.weight, atol=1e-5)
+    moved = int((volume.tsdf > before + 0.1).sum())
+    if allow_clear:
+        assert moved > 20  # the sphere's voxels pulled towards free space
+    else:
+        assert moved == 0
+
+
 def test_each_block_s_triangles_are_the_reference_s() -> None:
     volume = TsdfVolume(TsdfParams(voxel_size=0.04, truncation_distance=3.0))
     for k, (yaw, x) in enumerate([(0, 0.0), (8, 0.06)]):

@@ -76,7 +76,8 @@ def integrate_reference(volume: TsdfVolume, slots: Any, depth: F32, camera: Intr
                     if sdf < -trunc:
                         continue
                     far = d > p.max_integration_distance
-                    if far and (z > p.max_integration_distance or sdf <= trunc):
+                    if far and (not p.allow_clear or z > p.max_integration_distance or
+                                sdf <= trunc):
                         continue  # a far depth clears the free space before it only
                     if mode == 0:
                         obs = 1.0

@@ -10,10 +10,10 @@ signed distance is the projective one, ``sdf = D - Z``: the depth of the nearest
 minus the voxel's own (as Open3D's; reading the depth bilinearly within one surface cut the
 error on noise-free frames but not on noisy ones, and doubled the integration time). With
 ``sdf`` below minus the truncation ``T`` the voxel is hidden and keeps its value. A depth
-beyond ``max_integration_distance`` makes no surface but still clears: voxels nearer than
-that limit and more than ``T`` before the depth are updated as free space (voxblox's
-clearing rays), so an object that leaves before a far background is carved. Otherwise a
-voxel takes ``min(1, sdf / T)`` with the observation's weight ``w``::
+beyond ``max_integration_distance`` makes no surface; with ``allow_clear`` it still clears:
+voxels nearer than that limit and more than ``T`` before the depth are updated as free
+space (voxblox's clearing rays), so an object that leaves before a far background is
+carved. Otherwise a voxel takes ``min(1, sdf / T)`` with the observation's weight ``w``::
 
     value = (value * W + min(1, sdf / T) * w) / (W + w),   W = min(W + w, max_weight)
 
@@ -179,7 +179,7 @@ def integrate_blocks(depth: F32, aux: F32, mode: int, cam: F64, rotation: F64,
                      translation: F64, slots: I32, coords: I32, tsdf: F32, weight: F32,
                      voxel: float, block: int, truncation: float, min_depth: float,
                      max_depth: float,
-                     max_weight: float, dropoff: bool, carving: bool, updated: B1,
+                     max_weight: float, dropoff: bool, carving: bool, clear: bool, updated: B1,
                      counts: I64) -> None:
     """Update the voxels of blocks ``slots`` with one depth image (see the module notes);
     ``(rotation, translation)`` takes world points into the camera; ``aux`` is the sigma
@@ -226,8 +226,8 @@ def integrate_blocks(depth: F32, aux: F32, mode: int, cam: F64, rotation: F64,
                     sdf = d - z
                     if sdf < -truncation:
                         continue
-                    # a depth past max_depth only clears the free space before it
-                    if d > max_depth and (z > max_depth or sdf <= truncation):
+                    # a depth past max_depth only clears the free space before it (clear)
+                    if d > max_depth and (not clear or z > max_depth or sdf <= truncation):
                         continue
                     if mode == 0:
                         obs = 1.0

@@ -226,7 +226,7 @@ class TsdfVolume:
             depth, aux, mode, camera.vector, to_camera.rotation, to_camera.position, slots,
             self.coords, self.tsdf, self.weight, p.voxel_size, p.block_size, p.truncation_m,
             p.min_integration_distance, p.max_integration_distance, p.max_weight,
-            p.weight_dropoff, p.free_space_carving, self.changed, counts)
+            p.weight_dropoff, p.free_space_carving, p.allow_clear, self.changed, counts)
         result.voxels = int(counts.sum())
         if not result.voxels and result.allocated:
             self._undo_allocation()  # a frame that fused nothing leaves no trace
