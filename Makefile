@@ -41,7 +41,10 @@ check: venv
 
 # The shipped stereo graph on the bundled simulator bag and on a real pair with ground
 # truth (Middlebury 2003 Teddy, test/data), each scored beside OpenCV's StereoSGBM (Teddy
-# also beside the matcher with each matching cost, census and learned); the depth filter on the bundled depth camera's bag, beside librealsense's filters.
+# also beside the matcher with each matching cost, census and learned); the depth filter
+# on the bundled depth camera's bag, beside librealsense's filters; the same bag fused into
+# a mesh (config/fusion_pipeline.yaml), scored against the exact surface, written as PLY
+# with a preview picture.
 TEDDY := test/data/middlebury2003/teddy
 demo: venv
 	rm -rf $(DEMO_OUT)
@@ -56,6 +59,11 @@ demo: venv
 	$(BIN)/depth-nodes process bags/depth_moving_camera $(DEMO_OUT)/depth_filter_out \
 	  --config config/depth_filter_pipeline.yaml
 	$(BIN)/depth-nodes eval $(DEMO_OUT)/depth_filter_out --librealsense
+	$(BIN)/depth-nodes process bags/depth_moving_camera $(DEMO_OUT)/fusion_out \
+	  --config config/fusion_pipeline.yaml
+	$(BIN)/depth-nodes eval $(DEMO_OUT)/fusion_out
+	$(BIN)/depth-nodes export-mesh $(DEMO_OUT)/fusion_out $(DEMO_OUT)/fusion_mesh.ply \
+	  --preview $(DEMO_OUT)/fusion_mesh.png
 
 # Regenerate the committed synthetic bags (deterministic from their seeds).
 bags: venv

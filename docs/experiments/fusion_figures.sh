@@ -22,15 +22,20 @@ for group in $WHICH; do
       $DN process "$OUT/depth_orbit" "$OUT/depth_orbit.raw" \
         --config docs/experiments/fusion_raw.yaml --force > /dev/null
       $DN eval "$OUT/depth_orbit.raw" --open3d | tee "$OUT/accuracy.txt"
-      # without voxblox's clearing rays (depths past 5 m ignored, as Open3D ignores them)
-      printf 'tsdf_fusion:\n  ros__parameters: {allow_clear: false}\n' > "$OUT/no_clear.yaml"
-      $DN process "$OUT/depth_orbit" "$OUT/depth_orbit.raw_no_clear" --force \
-        --config docs/experiments/fusion_raw.yaml --params "$OUT/no_clear.yaml" > /dev/null
-      $DN eval "$OUT/depth_orbit.raw_no_clear" | tee "$OUT/accuracy_no_clear.txt"
-      # the shipped pipeline (depth_filter -> tsdf_fusion, sigma weighting)
+      # with voxblox's clearing rays (the free space before depths past 5 m cleared)
+      printf 'tsdf_fusion:\n  ros__parameters: {allow_clear: true}\n' > "$OUT/clear.yaml"
+      $DN process "$OUT/depth_orbit" "$OUT/depth_orbit.raw_clear" --force \
+        --config docs/experiments/fusion_raw.yaml --params "$OUT/clear.yaml" > /dev/null
+      $DN eval "$OUT/depth_orbit.raw_clear" | tee "$OUT/accuracy_clear.txt"
+      # the shipped pipeline (depth_filter -> tsdf_fusion), Open3D fed the filtered depth,
+      # and the filtered depth weighted by its sigma
       $DN process "$OUT/depth_orbit" "$OUT/depth_orbit.pipeline" \
         --config config/fusion_pipeline.yaml --force > /dev/null
-      $DN eval "$OUT/depth_orbit.pipeline" | tee "$OUT/accuracy_pipeline.txt"
+      $DN eval "$OUT/depth_orbit.pipeline" --open3d | tee "$OUT/accuracy_pipeline.txt"
+      printf 'tsdf_fusion:\n  ros__parameters: {weighting_mode: sigma}\n' > "$OUT/sigma.yaml"
+      $DN process "$OUT/depth_orbit" "$OUT/depth_orbit.pipeline_sigma" --force \
+        --config config/fusion_pipeline.yaml --params "$OUT/sigma.yaml" > /dev/null
+      $DN eval "$OUT/depth_orbit.pipeline_sigma" | tee "$OUT/accuracy_pipeline_sigma.txt"
       ;;
     weighting)  # the stereo graph's depth, 5 cm, each weighting and Open3D
       $DN generate "$OUT/stereo_orbit" --preset stereo_orbit --force > /dev/null
@@ -45,7 +50,7 @@ for group in $WHICH; do
       $DN import-views $T/templeSR_par.txt "$OUT/temple" --force \
         --bbox -0.073568 0.021728 -0.012445 0.028855 0.181892 0.062736 > /dev/null
       uncommented config/multiview_pipeline.yaml > "$OUT/temple_graph.yaml"
-      for weight in 0.0001 30; do
+      for weight in 0.0001 30.0; do
         cat > "$OUT/temple-$weight.yaml" <<YAML
 multiview_stereo:
   ros__parameters: {min_depth: 0.45, max_depth: 0.8, planes: 128, delay: 1, uniqueness_ratio: 15.0}
@@ -55,7 +60,7 @@ YAML
         $DN process "$OUT/temple" "$OUT/temple-$weight.out" --config "$OUT/temple_graph.yaml" \
           --namespace /views --params "$OUT/temple-$weight.yaml" --force > /dev/null
         $DN eval "$OUT/temple-$weight.out" | tee "$OUT/temple-$weight.txt"
-        $DN export-mesh "$OUT/temple-$weight.out" "$OUT/temple-$weight.ply" --force \
+        $DN export-mesh "$OUT/temple-$weight.out" "$OUT/temple-$weight.ply" --force --preview-up=-y \
           --preview "$OUT/temple-$weight.png"
       done
       ;;

@@ -4,7 +4,7 @@ sequences fused by the core volume with the node's defaults (2 cm voxels here):
     python docs/experiments/fusion_sequences.py [leaves] [still] [long]
 
 * leaves: depth_object_leaves (a box in front of the still camera for the first half of
-  the frames, then gone): per frame after it leaves, the mesh vertices more than 2 voxels
+  the frames, then gone; its background past max_integration_distance, so allow_clear): per frame after it leaves, the mesh vertices more than 2 voxels
   from the scene that remains (the box's surface, and its shadow's edges) and the frames
   until none is left.
 * still: depth_static repeated for 300 frames (its noise and holes drawn anew each frame):
@@ -42,12 +42,15 @@ def leaves() -> None:
     gone = config.n_frames // 2
     box = scene_at(config, gone - 1).primitives[-1]  # the leaving box, while it is there
     after = scene_at(config, gone)
-    volume = TsdfVolume(TsdfParams(voxel_size=VOXEL))
+    # the background lies past max_integration_distance (5 m): it clears only with
+    # allow_clear
+    settings = TsdfParams(voxel_size=VOXEL, allow_clear=True)
+    volume = TsdfVolume(settings)
     # the floor: a volume that sees only the frames after the box left (noise and mixed
     # pixels there make vertices off the scene too)
-    never = TsdfVolume(TsdfParams(voxel_size=VOXEL))
+    never = TsdfVolume(settings)
     print(f'depth_object_leaves: {config.n_frames} frames {config.width}x{config.height}, '
-          f'the box gone from frame {gone}; voxel {VOXEL * 100:g} cm, defaults; vertices '
+          f'the box gone from frame {gone}; voxel {VOXEL * 100:g} cm, allow_clear; vertices '
           "within 2 voxels of the box's surface and farther than that from the scene left, "
           'beside a volume that never saw the box')
 

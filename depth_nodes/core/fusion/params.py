@@ -53,10 +53,11 @@ class TsdfParams:
                                        'surface) loses half its weight before the update: a '
                                        'surface that moved away leaves within a few frames',
                                        choices=(True, False))
-    allow_clear: bool = setting(True, 'A depth beyond max_integration_distance makes no '
+    allow_clear: bool = setting(False, 'A depth beyond max_integration_distance makes no '
                                 'surface but clears the free space before it, up to that '
                                 'distance (voxblox\'s allow_clear): an object that leaves '
-                                'before a far background is carved', choices=(True, False))
+                                'before a far background is carved, at a cost to the '
+                                'surfaces near that distance', choices=(True, False))
     decay_factor: float = setting(1.0, 'Every voxel\'s weight is multiplied by this at each '
                                   'frame; a voxel below min_weight is forgotten (1: no '
                                   'decay)', low=0.0, high=1.0)
