@@ -118,7 +118,7 @@ def long() -> None:
         peak = max(peak, volume.memory_bytes / 2 ** 20)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f'depth_long: {config.n_frames} frames {config.width}x{config.height}, voxel '
-          f'{VOXEL * 100:g} cm, memory_mb {limit:g}: the volume at most {peak:.2f} MB, '
+          f'{VOXEL * 100:g} cm, memory_mb {limit:g}: the volume at most {peak:.3f} MB, '
           f'{len(volume.slots())} blocks at the end, {evicted} dropped for memory, {refused} '
           f'not allocated; peak RSS of the process {rss:.0f} MB')
 

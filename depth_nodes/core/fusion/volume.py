@@ -45,8 +45,10 @@ I64 = NDArray[np.int64]
 
 #: A voxel's value and weight, float32 each.
 BYTES_PER_VOXEL = 8
-#: Per block besides its voxels: coordinates, key, flags.
-BYTES_PER_BLOCK = 3 * 4 + 8 + 2
+#: Per block besides its voxels: coordinates, key, flags, and its share of the hash table
+#: (rebuilt to a power of two of at least 4 entries a block: at most 8, a key and a slot
+#: each).
+BYTES_PER_BLOCK = 3 * 4 + 8 + 2 + 8 * (8 + 4)
 #: Blocks the arrays hold at first (they double as needed, up to memory_mb).
 INITIAL_BLOCKS = 256
 
@@ -89,7 +91,7 @@ class TsdfVolume:
 
     def __init__(self, params: TsdfParams | None = None) -> None:
         self.params = (params or TsdfParams()).validate()
-        self._allocate_arrays(INITIAL_BLOCKS)
+        self._allocate_arrays(min(INITIAL_BLOCKS, self.block_limit))
         self._scratch = np.empty(0, np.int64)
         self._just_allocated = np.empty(0, np.int32)
 
@@ -168,7 +170,7 @@ class TsdfVolume:
     def clear(self) -> None:
         """Forget every block (the mesh is told of each)."""
         removed = self._removed | set(self.slots().tolist())
-        self._allocate_arrays(INITIAL_BLOCKS)
+        self._allocate_arrays(min(INITIAL_BLOCKS, self.block_limit))
         self._removed = removed
 
     def take_changes(self) -> tuple[I32, I32]:
