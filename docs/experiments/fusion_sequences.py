@@ -4,9 +4,10 @@ sequences fused by the core volume with the node's defaults (2 cm voxels here):
     python docs/experiments/fusion_sequences.py [leaves] [still] [long]
 
 * leaves: depth_object_leaves (a box in front of the still camera for the first half of
-  the frames, then gone; its background past max_integration_distance, so allow_clear): per frame after it leaves, the mesh vertices more than 2 voxels
-  from the scene that remains (the box's surface, and its shadow's edges) and the frames
-  until none is left.
+  the frames, then gone; its background past max_integration_distance, so allow_clear):
+  per frame after it leaves, the mesh vertices within 2 voxels of the box's surface and
+  farther than that from the scene left, beside a volume that never saw the box, and the
+  frames until they are down to its floor.
 * still: depth_static repeated for 300 frames (its noise and holes drawn anew each frame):
   the mesh's accuracy and completeness after 10, 30 and 300 frames, with the default
   truncation and with one above the far depths' noise.
