@@ -45,6 +45,7 @@ setup(
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
         (f'share/{PACKAGE}/config', sorted(glob('config/*.yaml'))),
+        (f'share/{PACKAGE}/config/cameras', sorted(glob('config/cameras/*.yaml'))),
         (f'share/{PACKAGE}/launch', sorted(glob('launch/*.py'))),
     ],
     python_requires='>=3.10',

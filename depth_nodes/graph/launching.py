@@ -9,6 +9,8 @@ camera names and with the same parameter-file rules:
   entry applies to a node by its name, full name or alias (``disparity_node``) or through
   ``/**``, and is merged into the node's inline parameters here (launch_ros would match
   entries by the node's own name only);
+* ``camera``: a camera preset (``config/cameras/NAME.yaml``,
+  :mod:`~depth_nodes.graph.presets`) in place of the launch file's graph;
 * ``namespace``, ``left``, ``right``, ``image``: a camera driver's names
   (:func:`~depth_nodes.graph.description.rename_cameras`);
 * ``image_transport``: how the nodes that read the driver's images take them (the
@@ -34,6 +36,7 @@ from depth_nodes.graph.description import (
     unmatched_warning,
     with_transport,
 )
+from depth_nodes.graph.presets import load_camera
 from depth_nodes.ros.transport import TRANSPORTS
 
 #: The launch arguments of the package's launch files: name -> description.
@@ -41,6 +44,8 @@ LAUNCH_ARGUMENTS = {
     'params_file': 'ROS 2 parameter file applied to the nodes (a stereo_image_proc one '
                    'works unchanged: entries by node name, alias such as disparity_node, or '
                    '/**)',
+    'camera': 'a camera preset of config/cameras (realsense_d435, realsense_d455, zed2i, '
+              'oakd, orbbec_femto, generic_stereo) in place of this file\'s graph',
     'namespace': 'camera namespace replacing the graph\'s (e.g. /camera)',
     'left': 'left camera name below it (default left)',
     'right': 'right camera name below it (default right)',
@@ -50,7 +55,7 @@ LAUNCH_ARGUMENTS = {
 
 
 def launch_nodes(config_path: str | Path, *, params_file: str | None = None,
-                 namespace: str | None = None, left: str | None = None,
+                 camera: str | None = None, namespace: str | None = None, left: str | None = None,
                  right: str | None = None, image: str | None = None,
                  image_transport: str | None = None) -> list[dict[str, Any]]:
     """Keyword arguments of ``launch_ros.actions.Node`` for every node of the graph.
@@ -61,8 +66,14 @@ def launch_nodes(config_path: str | Path, *, params_file: str | None = None,
         ConfigError: A bad graph, parameter file, name or transport, or a parameter-file
             entry that matches no node (``ros2 launch`` would start the nodes without it).
     """
-    config = rename_cameras(load_graph_config(config_path), namespace=namespace or None,
-                            left=left or None, right=right or None, image=image or None)
+    if camera:
+        preset = load_camera(camera, Path(config_path).parent)
+        graph = preset.config
+        image_transport = image_transport or preset.image_transport
+    else:
+        graph = load_graph_config(config_path)
+    config = rename_cameras(graph, namespace=namespace or None, left=left or None,
+                            right=right or None, image=image or None)
     params = load_params_file(params_file) if params_file else {}
     unmatched = unmatched_entries(config, params)
     if unmatched:

@@ -12,7 +12,9 @@ can be measured against the raw original (README, "Compressed and Bayer input"):
 * ``codec``: ``jpeg`` (``quality``) or ``png``: the images move to ``<topic>/compressed``
   as sensor_msgs/CompressedImage, in image_transport's format;
 * ``namespace``: the first namespace of every topic (``/stereo``) replaced, e.g. by
-  ``/camera``.
+  ``/camera``;
+* ``rename``: below it, names replaced (``left`` -> ``infra1``, ``image_raw`` ->
+  ``image_rect_raw``): a driver's layout, as a camera preset (config/cameras) reads it.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from depth_nodes.errors import BagError, ConfigError, DepthNodesError
-from depth_nodes.graph.description import checked_namespace
+from depth_nodes.graph.description import checked_name, checked_namespace
 from depth_nodes.ros.image import array_to_image, image_to_array, to_rgb8
 from depth_nodes.ros.transport import compress_image
 from depth_nodes.tools.bags.io import BagReader, BagWriter
@@ -42,6 +44,8 @@ class ConvertOptions:
     codec: str | None = None
     quality: int = 90
     bayer: str | None = None
+    #: (old, new) names of topic levels below the first namespace.
+    rename: tuple[tuple[str, str], ...] = ()
 
     def check(self) -> ConvertOptions:
         """Raises ConfigError on values no driver would produce."""
@@ -54,8 +58,13 @@ class ConvertOptions:
                               f'{self.bayer!r}')
         if self.namespace is not None:
             checked_namespace(self.namespace)
-        if self.codec is None and self.bayer is None and self.namespace is None:
-            raise ConfigError('nothing to convert: give --compress, --bayer or --namespace')
+        for old, new in self.rename:
+            checked_name(old, '--rename')
+            checked_name(new, '--rename')
+        if self.codec is None and self.bayer is None and self.namespace is None and \
+                not self.rename:
+            raise ConfigError('nothing to convert: give --compress, --bayer, --namespace or '
+                              '--rename')
         if self.quality != 90 and self.codec != 'jpeg':
             raise ConfigError('--quality applies to --compress jpeg only')
         return self
@@ -71,13 +80,17 @@ def mosaic(rgb: np.ndarray, order: str) -> np.ndarray:
     return out
 
 
-def _renamed(topic: str, namespace: str | None) -> str:
-    """``topic`` with its first namespace replaced; a topic without one (/tf, /clock,
-    /diagnostics) stays where it is."""
+def _renamed(topic: str, namespace: str | None,
+             rename: tuple[tuple[str, str], ...] = ()) -> str:
+    """``topic`` with its first namespace replaced and the levels below it renamed; a
+    topic without a namespace (/tf, /clock, /diagnostics) stays where it is."""
     parts = topic.strip('/').split('/')
-    if namespace is None or len(parts) < 2:
+    if len(parts) < 2:
         return topic
-    return '/' + '/'.join(p for p in (namespace.strip('/'), *parts[1:]) if p)
+    names = dict(rename)
+    rest = [names.get(p, p) for p in parts[1:]]
+    first = parts[0] if namespace is None else namespace.strip('/')
+    return '/' + '/'.join(p for p in (first, *rest) if p)
 
 
 def _camera_image(msg: Any, options: ConvertOptions) -> tuple[str, Any]:
@@ -129,7 +142,7 @@ def convert_bag(in_bag: str | Path, out_bag: str | Path, options: ConvertOptions
                 for bag_msg in reader.messages():
                     if stop_requested():
                         break
-                    topic = _renamed(bag_msg.topic, options.namespace)
+                    topic = _renamed(bag_msg.topic, options.namespace, options.rename)
                     if bag_msg.topic in cameras and (options.codec or options.bayer):
                         suffix, msg = _camera_image(bag_msg.deserialize(), options)
                         writer.write(topic + suffix, msg, bag_msg.timestamp)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from depth_nodes.errors import ConfigError
 from depth_nodes.tools import signals
 from depth_nodes.tools.bags.convert import ConvertOptions, convert_bag
 
@@ -28,13 +29,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--bayer', choices=('rggb', 'bggr', 'gbrg', 'grbg'),
                         help='sample colour images on this Bayer tile (bayer_<order>8)')
     parser.add_argument('--namespace', help='replace the first namespace of every topic')
+    parser.add_argument('--rename', action='append', default=[], metavar='OLD=NEW',
+                        help='rename a topic level below the namespace, e.g. left=infra1 or '
+                        'image_raw=image_rect_raw (a driver\'s layout; repeat for more)')
     parser.add_argument('--force', action='store_true', help='replace an existing OUT_BAG')
 
 
 def run(args: argparse.Namespace) -> int:
     """Convert the bag; print the message count of every topic written."""
+    renames = []
+    for pair in args.rename:
+        old, sep, new = pair.partition('=')
+        if not sep or not old or not new:
+            raise ConfigError(f'--rename {pair}: expected OLD=NEW, e.g. left=infra1')
+        renames.append((old, new))
     options = ConvertOptions(namespace=args.namespace, codec=args.compress,
-                             quality=args.quality, bayer=args.bayer)
+                             quality=args.quality, bayer=args.bayer, rename=tuple(renames))
     with signals.graceful():
         counts = convert_bag(args.in_bag, args.out_bag, options, overwrite=args.force)
     print(f'{args.in_bag} -> {args.out_bag}')

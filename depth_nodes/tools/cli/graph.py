@@ -5,14 +5,20 @@ from __future__ import annotations
 
 import argparse
 
+from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import GraphConfig, load_graph_config, rename_cameras
+from depth_nodes.graph.presets import load_camera
 from depth_nodes.tools.bags.process import default_config_path
 from depth_nodes.tools.cli.options import Once
 
 
 def add_graph_arguments(parser: argparse.ArgumentParser) -> None:
-    """--config and --params."""
+    """--config, --camera and --params."""
     parser.add_argument('--config', help='graph YAML (default: config/stereo_pipeline.yaml)')
+    parser.add_argument('--camera', metavar='NAME',
+                        help='a camera preset (config/cameras/NAME.yaml): the graph on that '
+                        "camera driver's topics with its settings, e.g. realsense_d435, "
+                        'zed2i, oakd, orbbec_femto, generic_stereo')
     parser.add_argument('--params', action=Once,
                         help='ROS 2 parameter file overriding node parameters')
 
@@ -43,7 +49,21 @@ def add_camera_arguments(parser: argparse.ArgumentParser, *, auto: bool) -> None
 
 
 def load_graph(args: argparse.Namespace) -> GraphConfig:
-    """The graph of --config (default: the stereo graph) under the camera names given."""
-    config = load_graph_config(args.config or default_config_path())
+    """The graph of --config or --camera (default: the stereo graph) under the camera names
+    given; a preset's image transport becomes ``args.image_transport`` unless one was
+    given.
+
+    Raises:
+        ConfigError: --camera with --config, an unknown preset, or a bad graph.
+    """
+    if args.camera is not None:
+        if args.config is not None:
+            raise ConfigError('--camera and --config: give one (a preset names its graph)')
+        preset = load_camera(args.camera, default_config_path().parent)
+        config = preset.config
+        if args.image_transport is None:
+            args.image_transport = preset.image_transport
+    else:
+        config = load_graph_config(args.config or default_config_path())
     return rename_cameras(config, namespace=args.namespace, left=args.left, right=args.right,
                           image=args.image)
