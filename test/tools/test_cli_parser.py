@@ -87,7 +87,7 @@ MINIMAL = {'generate': ['out'], 'process': ['in', 'out'], 'convert': ['in', 'out
            'reindex': ['bag'], 'param': ['list'],
            'node': ['list'], 'topic': ['list'], 'diag': [], 'eval': ['bag'],
            'eval-sl': ['bag'], 'eval-tof': ['bag'], 'eval-depth-filter': ['bag'],
-           'bench': ['sgm'], 'train-cost': ['w.npz'], 'train-confidence': ['c.npz']}
+           'bench': ['sgm'], 'tune': ['bag', '--out', 'p.yaml'], 'train-cost': ['w.npz'], 'train-confidence': ['c.npz']}
 
 
 def test_the_full_parser_runs_each_command_with_its_module() -> None:

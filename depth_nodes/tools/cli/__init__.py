@@ -75,6 +75,8 @@ COMMANDS = (
     Command('eval-depth-filter', 'an alias of eval for depth-filter bags',
             'evaluate_depth_filter'),
     Command('bench', 'speed figures beside OpenCV, measured in one run', 'bench'),
+    Command('tune', "search sgm_stereo's settings on your own stereo bag, no ground truth "
+            'needed; write them as a parameter file', 'tune'),
     Command('train-cost', "train the learned matching cost's feature network on simulated "
             'scenes (the train extra)', 'train_cost'),
     Command('train-confidence', "train cross_check's learned confidence on simulated scenes "
