@@ -307,10 +307,10 @@ def test_a_multiview_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     drawn = _output(['eval', str(tmp_path / 'out'), '--previews', str(tmp_path / 'png'),
                      '--preview-frames', '2'], capsys)
     assert drawn.startswith(evaluate_multiview_bag(tmp_path / 'out').format())
-    assert drawn.endswith(f'4 previews written to {tmp_path / "png"}\n')
+    assert drawn.endswith(f'2 previews written to {tmp_path / "png"}\n')
     names = sorted(p.name for p in (tmp_path / 'png').glob('*.png'))
-    assert len(names) == 4
-    assert sum('mvs_depth_gt' in n for n in names) == 2
+    assert len(names) == 2  # a sheet a frame: the depth and the truth in one row
+    assert all(n.endswith('_sheet.png') for n in names)
     with BagReader(tmp_path / 'out') as reader:
         truth = image_to_array(next(reader.messages(['/mvs/depth_gt'])).deserialize())
     assert np.isfinite(truth).mean() > 0.5  # the scores above are over real pixels

@@ -1,5 +1,6 @@
-"""`eval --previews` on any bag: colour-mapped maps with a colour bar beside the left image,
-for a user's own recording without ground truth too (depth_nodes.tools.evaluation.previews)."""
+"""`eval --previews` on any bag: a sheet a frame, the left image and the colour-mapped maps
+side by side, a row per kind over one range with one colour bar, for a user's own
+recording without ground truth too (depth_nodes.tools.evaluation.previews)."""
 
 from __future__ import annotations
 
@@ -17,10 +18,12 @@ from depth_nodes.ros.image import array_to_image
 from depth_nodes.tools.bags.io import BagWriter
 from depth_nodes.tools.evaluation.previews import (
     BAR_WIDTH,
+    TITLE_HEIGHT,
     MapView,
     bag_previews,
     colour,
     colour_bar,
+    sheet_rows,
 )
 
 H, W = 40, 60
@@ -61,20 +64,33 @@ def test_colour_maps_the_range_and_blacks_out_missing_values() -> None:
 
 
 def test_previews_of_a_bag_without_ground_truth(tmp_path: Path) -> None:
+    """One sheet a frame: rows disparity, depth, confidence; the left image first on the
+    top row, each map under its title, a colour bar at each row's end."""
     disparity = _bag(tmp_path / 'bag')
     written = bag_previews(tmp_path / 'bag', tmp_path / 'png', max_frames=2)
-    names = sorted(p.name for p in written)
-    assert names == sorted(f'{10 + i}000000000_{kind}.png' for i in range(2) for kind in (
-        'cam_confidence', 'cam_depth_depth', 'cam_disparity_disparity'))
-    img = cv2.imread(str(tmp_path / 'png' / '10000000000_cam_disparity_disparity.png'))
-    assert img.shape == (H + 22, 2 * W + BAR_WIDTH, 3)  # title, image | map | bar
-    body = img[22:]
+    assert sorted(p.name for p in written) == ['10000000000_sheet.png', '11000000000_sheet.png']
+    img = cv2.imread(str(tmp_path / 'png' / '10000000000_sheet.png'))
+    row = H + TITLE_HEIGHT
+    assert img.shape == (3 * row, 2 * W + BAR_WIDTH, 3)  # image | map | bar, three rows
+    body = img[TITLE_HEIGHT:row]
     np.testing.assert_array_equal(body[:, :W], np.full((H, W, 3), 90, np.uint8))
     finite = disparity[np.isfinite(disparity)]
     low, high = np.percentile(finite, [1, 99])
     expected = colour(disparity, float(low), float(high), cv2.COLORMAP_TURBO)
     np.testing.assert_array_equal(body[:, W:2 * W], expected)
     assert not body[:5, W:W + 5].any()  # no disparity: black
+    # the rows below start with white space where the left image is on the first
+    assert (img[row + TITLE_HEIGHT:2 * row, :W] == 255).all()
+
+
+def test_a_row_shares_one_range() -> None:
+    a = MapView('a', np.zeros((2, 2)), 0.0, 10.0, kind='disparity')
+    b = MapView('b', np.zeros((2, 2)), 2.0, 30.0, kind='disparity')
+    c = MapView('c', np.zeros((2, 2)), 0.0, 1.0, kind='confidence')
+    e = MapView('e', np.zeros((2, 2)), 0.0, 4.0, kind='error')
+    rows = sheet_rows([c, b, e, a])
+    assert [[v.name for v in row] for row in rows] == [['b', 'a'], ['e'], ['c']]
+    assert {(v.low, v.high) for v in rows[0]} == {(0.0, 30.0)}
 
 
 def test_eval_draws_a_bag_without_ground_truth_and_says_so(tmp_path: Path) -> None:
@@ -86,8 +102,8 @@ def test_eval_draws_a_bag_without_ground_truth_and_says_so(tmp_path: Path) -> No
     assert '--previews DIR draws its disparity' in refused.stderr
     drawn = run_cli(['eval', str(tmp_path / 'bag'), '--previews', str(tmp_path / 'png')])
     assert drawn.returncode == 0, drawn.stderr
-    assert 'no ground truth, nothing scored; 3 previews written' in drawn.stdout
-    assert len(list((tmp_path / 'png').glob('*.png'))) == 3
+    assert 'no ground truth, nothing scored; 1 previews written' in drawn.stdout
+    assert len(list((tmp_path / 'png').glob('*.png'))) == 1
 
 
 def test_bad_requests_are_one_line_errors(tmp_path: Path) -> None:
@@ -117,10 +133,12 @@ def test_a_colour_left_image_keeps_its_colours_and_the_maps_their_values(
         writer.write('/cam/confidence', array_to_image(
             np.full((H, W), 0.25, np.float32), '32FC1', header), 1)
     bag_previews(tmp_path / 'bag', tmp_path / 'png')
-    img = cv2.imread(str(tmp_path / 'png' / '3000000000_cam_depth_depth.png'))[22:]
-    np.testing.assert_array_equal(img[0, 0], [0, 0, 200])  # BGR on disk: red
+    img = cv2.imread(str(tmp_path / 'png' / '3000000000_sheet.png'))
+    row = H + TITLE_HEIGHT
+    depth_row = img[TITLE_HEIGHT:row]  # rows: depth, confidence
+    np.testing.assert_array_equal(depth_row[0, 0], [0, 0, 200])  # BGR on disk: red
     expected = colour(np.full((1, 1), 2.0, np.float32), 0.0, 2.0, cv2.COLORMAP_TURBO)
-    np.testing.assert_array_equal(img[H // 2, W + W // 2], expected[0, 0])  # 2 m at the top
-    conf = cv2.imread(str(tmp_path / 'png' / '3000000000_cam_confidence.png'))[22:]
+    np.testing.assert_array_equal(depth_row[H // 2, W + W // 2], expected[0, 0])  # 2 m: top
+    conf = img[row + TITLE_HEIGHT:2 * row]
     expected = colour(np.full((1, 1), 0.25, np.float32), 0.0, 1.0, cv2.COLORMAP_VIRIDIS)
     np.testing.assert_array_equal(conf[H // 2, W + W // 2], expected[0, 0])

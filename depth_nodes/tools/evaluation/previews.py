@@ -3,9 +3,10 @@ what the colours mean, beside the camera image it was computed from.
 
 `depth-nodes eval --previews DIR` writes them for any bag: scored against the ground truth
 when the bag has one (the error maps too), or, for a user's own recording, just the
-disparities, depth images and confidence maps it holds. One PNG per map and frame:
-``<stamp>_<topic>.png``, the left image on the left, the map in the middle, its colour bar
-on the right; pixels without a value are black.
+disparities, depth images and confidence maps it holds. One sheet per frame,
+``<stamp>_sheet.png``: a row per kind of map (disparity, error, depth, confidence), the
+left image first on the top row, the maps of a row side by side over one shared range and
+one colour bar at the row's end; pixels without a value are black (grey on an error map).
 """
 
 from __future__ import annotations
@@ -98,36 +99,67 @@ def _bgr(image: Array | None, shape: tuple[int, int]) -> Array:
     return np.asarray(img)
 
 
-def composite(image: Array | None, view: MapView) -> Array:
-    """The camera image, the colour-mapped map and its colour bar side by side, with the
-    map's name above."""
-    h, w = view.values.shape[:2]
-    body = np.hstack([_bgr(image, (h, w)), colour(view.values, view.low, view.high,
-                                                  view.colormap, view.missing),
-                      colour_bar(h, view)])
-    title = np.full((22, body.shape[1], 3), 255, np.uint8)
-    text = f'{view.name} ({view.kind})' if view.kind else view.name
-    if view.missing != (0, 0, 0):
-        text += ', grey: no value'
+#: The order of a sheet's rows, by the kind of map.
+ROW_ORDER = ('disparity', 'error', 'depth', 'confidence')
+#: Height of a panel's title strip, px.
+TITLE_HEIGHT = 22
+
+
+def sheet_rows(views: Iterable[MapView]) -> list[list[MapView]]:
+    """The views grouped into a sheet's rows (see the module notes), each row over one
+    range: the lowest ``low`` and the highest ``high`` of its maps."""
+    groups: dict[str, list[MapView]] = {}
+    for view in views:
+        groups.setdefault(view.kind or view.name, []).append(view)
+    order = sorted(groups, key=lambda k: ROW_ORDER.index(k) if k in ROW_ORDER else len(ROW_ORDER))
+    rows = []
+    for kind in order:
+        group = groups[kind]
+        low = min(v.low for v in group)
+        high = max(v.high for v in group)
+        rows.append([MapView(v.name, v.values, low, high, v.colormap, v.unit, v.kind,
+                             v.missing) for v in group])
+    return rows
+
+
+def _titled(panel: Array, text: str) -> Array:
+    title = np.full((TITLE_HEIGHT, panel.shape[1], 3), 255, np.uint8)
     cv2.putText(title, text, (4, 16), cv2.FONT_HERSHEY_PLAIN, 1.0, (0, 0, 0), 1, cv2.LINE_AA)
-    return np.vstack([title, body])
+    return np.vstack([title, panel])
 
 
-def slug(name: str) -> str:
-    """A file-name-safe form of a topic or method name."""
-    return ''.join(c if c.isalnum() else '_' for c in name).strip('_')
+def sheet(image: Array | None, views: Iterable[MapView]) -> Array:
+    """One frame's sheet (see the module notes), BGR."""
+    rows = sheet_rows(views)
+    if not rows:
+        raise ConfigError('nothing to draw on the sheet')
+    h, w = rows[0][0].values.shape[:2]
+    drawn = []
+    for n, row in enumerate(rows):
+        first = _bgr(image, (h, w)) if n == 0 else np.full((h, w, 3), 255, np.uint8)
+        panels = [_titled(first, 'left image' if n == 0 else '')]
+        for view in row:
+            values = view.values
+            if values.shape[:2] != (h, w):
+                values = cv2.resize(values.astype(np.float32), (w, h),
+                                    interpolation=cv2.INTER_NEAREST)
+            text = f'{view.name} ({view.kind})' if view.kind else view.name
+            panels.append(_titled(colour(values, view.low, view.high, view.colormap,
+                                         view.missing), text))
+        panels.append(_titled(colour_bar(h, row[0]), row[0].kind))
+        drawn.append(np.hstack(panels))
+    width = max(r.shape[1] for r in drawn)
+    return np.vstack([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)),
+                             constant_values=255) for r in drawn])
 
 
 def write_views(folder: Path, stamp: int, image: Array | None,
                 views: Iterable[MapView]) -> list[Path]:
-    """One composite PNG per view (see the module notes); returns the files."""
-    written = []
-    for view in views:
-        path = folder / f'{stamp}_{slug(view.name)}{"_" + view.kind if view.kind else ""}.png'
-        if not cv2.imwrite(str(path), composite(image, view)):
-            raise ConfigError(f'cannot write {path}')
-        written.append(path)
-    return written
+    """The frame's sheet as ``<stamp>_sheet.png`` (see the module notes); returns it."""
+    path = folder / f'{stamp}_sheet.png'
+    if not cv2.imwrite(str(path), sheet(image, views)):
+        raise ConfigError(f'cannot write {path}')
+    return [path]
 
 
 def previews_folder(folder: Path) -> None:
@@ -166,7 +198,8 @@ def _views_of(topic: str, msg: Any) -> MapView | None:
         return MapView(topic, disparity, low, high, kind='disparity')
     pixels, encoding = image_pixels(msg)
     if topic.endswith('/confidence') and encoding == '32FC1':
-        return MapView(topic, pixels, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit='')
+        return MapView(topic, pixels, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit='',
+                       kind='confidence')
     if topic.endswith(('/depth', '/depth_gt')) and encoding in ('32FC1', '16UC1'):
         metres = depth_metres(pixels, encoding)
         finite = metres[np.isfinite(metres)]
@@ -205,6 +238,7 @@ def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
             frames.setdefault(stamp, {})[bag_msg.topic] = bag_msg.deserialize()
     written: list[Path] = []
     for stamp, frame in sorted(frames.items()):
+        views, image = [], None
         for topic in maps:
             if topic not in frame:
                 continue
@@ -214,7 +248,10 @@ def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
                 continue  # a damaged message: nothing to draw
             if view is None:
                 continue
-            written += write_views(out, stamp, _left_image(frame, topic), [view])
+            views.append(view)
+            image = image if image is not None else _left_image(frame, topic)
+        if views:
+            written += write_views(out, stamp, image, views)
     return written
 
 
