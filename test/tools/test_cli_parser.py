@@ -83,11 +83,13 @@ print(json.dumps(out))
 MINIMAL = {'generate': ['out'], 'process': ['in', 'out'], 'convert': ['in', 'out'],
            'import-pair': ['l.png', 'r.png', 'out'], 'import-views': ['par.txt', 'out'],
            'pipeline': [], 'play': ['bag'],
-           'record': ['out', '--topics', '/a'], 'export-mesh': ['bag', 'm.ply'],
+           'record': ['out', '--topics', '/a'], 'preview': ['bag', 'v.mp4'],
+           'export-mesh': ['bag', 'm.ply'],
            'reindex': ['bag'], 'param': ['list'],
            'node': ['list'], 'topic': ['list'], 'diag': [], 'eval': ['bag'],
            'eval-sl': ['bag'], 'eval-tof': ['bag'], 'eval-depth-filter': ['bag'],
-           'bench': ['sgm'], 'tune': ['bag', '--out', 'p.yaml'], 'train-cost': ['w.npz'], 'train-confidence': ['c.npz']}
+           'bench': ['sgm'], 'tune': ['bag', '--out', 'p.yaml'], 'train-cost': ['w.npz'],
+           'train-confidence': ['c.npz']}
 
 
 def test_the_full_parser_runs_each_command_with_its_module() -> None:

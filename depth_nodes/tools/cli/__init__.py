@@ -58,6 +58,8 @@ COMMANDS = (
     Command('pipeline', 'run every node of a graph in one process, live', 'pipeline'),
     Command('play', 'publish a bag into the live graph', 'play'),
     Command('record', 'record live topics into a bag', 'record'),
+    Command('preview', 'a processed bag as a video: each frame the sheet of eval --previews',
+            'preview'),
     Command('export-mesh', 'the final mesh of a processed bag (tsdf_fusion) as a PLY file',
             'export_mesh'),
     Command('reindex', 'make a recording cut off (killed, a full disk, a power loss) a '

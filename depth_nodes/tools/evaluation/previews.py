@@ -11,7 +11,7 @@ one colour bar at the row's end; pixels without a value are black (grey on an er
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -208,19 +208,21 @@ def _views_of(topic: str, msg: Any) -> MapView | None:
     return None
 
 
-def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
-                 ) -> list[Path]:
-    """Previews of the first ``max_frames`` stamps of every map in a bag (disparities,
-    depth images, confidence maps), each beside the left image of its namespace.
+#: Stamps held back while a frame's maps arrive (a processed bag writes them close together).
+PENDING_STAMPS = 8
+
+
+def bag_sheets(path: str | Path, *, max_frames: int | None = None
+               ) -> Iterator[tuple[int, Array]]:
+    """``(stamp, sheet)`` of the first ``max_frames`` stamps (None: all) of a bag's maps
+    (disparities, depth images, confidence maps), in stamp order, read as a stream.
 
     Raises:
         BagError: Unreadable bag, or no map in it.
-        ConfigError: The folder cannot be written, or ``max_frames`` < 1.
+        ConfigError: ``max_frames`` < 1.
     """
-    if max_frames < 1:
+    if max_frames is not None and max_frames < 1:
         raise ConfigError(f'--preview-frames must be at least 1, got {max_frames}')
-    out = Path(folder)
-    previews_folder(out)
     with BagReader(path) as reader:
         # left-view maps (a right-view disparity would not line up with the left image)
         maps = sorted(t for t, kind in reader.topics.items() if (
@@ -230,28 +232,62 @@ def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
             raise BagError(f'{path} holds no disparity, depth or confidence topic to draw')
         images = {t for t, kind in reader.topics.items() if kind in (IMAGE, COMPRESSED)
                   and t.endswith(LEFT_IMAGES)}
-        frames: dict[int, dict[str, Any]] = {}
+        pending: dict[int, dict[str, Any]] = {}
+        done: set[int] = set()
         for bag_msg in reader.messages([*maps, *images]):
             stamp = header_stamp(bag_msg.data)  # read before deserialising the pixels
-            if stamp not in frames and len(frames) >= max_frames:
+            if stamp in done:
                 continue
-            frames.setdefault(stamp, {})[bag_msg.topic] = bag_msg.deserialize()
-    written: list[Path] = []
-    for stamp, frame in sorted(frames.items()):
-        views, image = [], None
-        for topic in maps:
-            if topic not in frame:
-                continue
-            try:
-                view = _views_of(topic, frame[topic])
-            except DepthNodesError:
-                continue  # a damaged message: nothing to draw
-            if view is None:
-                continue
-            views.append(view)
-            image = image if image is not None else _left_image(frame, topic)
-        if views:
-            written += write_views(out, stamp, image, views)
+            if stamp not in pending:
+                if max_frames is not None and len(done) + len(pending) >= max_frames:
+                    continue
+                pending[stamp] = {}
+            pending[stamp][bag_msg.topic] = bag_msg.deserialize()
+            while len(pending) > PENDING_STAMPS:
+                oldest = min(pending)
+                done.add(oldest)
+                if (drawn := _sheet_of(pending.pop(oldest), maps)) is not None:
+                    yield oldest, drawn
+        for stamp in sorted(pending):
+            if (drawn := _sheet_of(pending[stamp], maps)) is not None:
+                yield stamp, drawn
+
+
+def _sheet_of(frame: dict[str, Any], maps: list[str]) -> Array | None:
+    views, image = [], None
+    for topic in maps:
+        if topic not in frame:
+            continue
+        try:
+            view = _views_of(topic, frame[topic])
+        except DepthNodesError:
+            continue  # a damaged message: nothing to draw
+        if view is None:
+            continue
+        views.append(view)
+        image = image if image is not None else _left_image(frame, topic)
+    return sheet(image, views) if views else None
+
+
+def bag_previews(path: str | Path, folder: str | Path, *, max_frames: int = 10
+                 ) -> list[Path]:
+    """The sheets of the first ``max_frames`` stamps of a bag (:func:`bag_sheets`) as
+    ``<stamp>_sheet.png`` in ``folder``.
+
+    Raises:
+        BagError: Unreadable bag, or no map in it.
+        ConfigError: The folder cannot be written, or ``max_frames`` < 1.
+    """
+    if max_frames < 1:
+        raise ConfigError(f'--preview-frames must be at least 1, got {max_frames}')
+    out = Path(folder)
+    previews_folder(out)
+    written = []
+    for stamp, drawn in bag_sheets(path, max_frames=max_frames):
+        target = out / f'{stamp}_sheet.png'
+        if not cv2.imwrite(str(target), drawn):
+            raise ConfigError(f'cannot write {target}')
+        written.append(target)
     return written
 
 
