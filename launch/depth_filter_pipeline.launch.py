@@ -10,6 +10,10 @@ driver's, e.g. /camera/camera for realsense-ros: the filter then reads
 params_file (config/depth_filter.yaml is one to start from: the stages, the noise model,
 the pose source), e.g. `ros2 launch depth_nodes depth_filter_pipeline.launch.py
 namespace:=/camera/camera params_file:=/path/to/depth_filter.yaml`.
+
+camera:=NAME starts a camera preset of config/cameras instead (its graph, on its driver's
+topics, with its settings), e.g. `ros2 launch depth_nodes depth_filter_pipeline.launch.py
+camera:=orbbec_femto`.
 """
 
 from depth_nodes.graph.launch_file import launch_description

@@ -1,13 +1,17 @@
 """`depth-nodes tune`: sgm_stereo's settings searched on a user's own stereo frames, scored
 without ground truth.
 
-The frames: up to ``frames`` rectified pairs spread over the bag (as `train-cost --adapt`
-reads them). The start: the shipped stereo graph's settings (config/stereo_pipeline.yaml,
-what `process` runs). Each trial is those settings with some changed at random (seeded):
-``P1``, ``P2``, ``uniqueness_ratio``, ``paths``, ``disparity_range``, ``matching_cost``
-and ``learned_weight``. cross_check's thresholds are not searched: without ground truth a
-looser check always scores better (more pixels pass, and a wrong match on a plain
-surface fits photometrically). A trial's score, lower is better, needs no ground truth;
+The frames: up to ``frames`` rectified pairs, in runs of two consecutive frames spread
+over the bag (read as `train-cost --adapt` reads them; a camera preset's driver topics
+with ``camera``). The start: the shipped
+stereo graph's settings (config/stereo_pipeline.yaml, what `process` runs), or the
+preset's. Each trial is those settings with some changed at random (seeded): ``P1``,
+``P2``, ``uniqueness_ratio``, ``paths``, ``matching_cost`` and ``learned_weight``.
+``disparity_range`` is not searched: it belongs to the camera (its baseline, focal length
+and nearest depth: a camera preset's), and a search could shrink it below the nearest
+object. cross_check's thresholds are not searched: without ground truth a looser check
+always scores better (more pixels pass, and a wrong match on a plain surface fits
+photometrically). A trial's score, lower is better, needs no ground truth;
 per pixel of the left image:
 
 * where the left-right check passes (the left disparity and the right one it lands on
@@ -17,11 +21,11 @@ per pixel of the left image:
   typical error of a wrong match, so that density after the check counts as much as
   the photometric fit, and a setting cannot win by answering only where it is sure;
 
-plus, between consecutive frames of one bag, :data:`TEMPORAL_WEIGHT` grey levels per
-pixel of median disparity change where both are checked (a still camera's disparity should
+plus, between the two consecutive frames of a run, :data:`TEMPORAL_WEIGHT` grey levels
+per pixel of median disparity change where both are checked (a still camera's disparity should
 not flicker; a moving one's changes with the motion, the same for every setting). The
 score of a trial is the mean over the frames. The best trial's settings are written as a
-ROS 2 parameter file for sgm_stereo and cross_check; with ground truth in the bag
+ROS 2 parameter file for sgm_stereo; with ground truth in the bag
 (``<ns>/left/disparity_gt``) the true error (dense bad-2 of the raw disparity) of the start
 and of the best is reported too.
 """
@@ -45,6 +49,7 @@ from depth_nodes.core.sgm.brightness import matched_brightness
 from depth_nodes.core.stamps import stamp_ns
 from depth_nodes.errors import ConfigError
 from depth_nodes.graph.description import load_graph_config
+from depth_nodes.graph.presets import load_camera
 from depth_nodes.ros.disparity import read_disparity
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.bags.process import default_config_path
@@ -58,13 +63,15 @@ F32 = NDArray[np.float32]
 MISSING_COST = 20.0
 #: Grey levels per pixel of median disparity change between consecutive frames.
 TEMPORAL_WEIGHT = 1.0
+#: sgm_stereo's parameters of type double (stereo_image_proc's types) among those searched:
+#: a parameter file must give them as floats.
+NODE_DOUBLES = frozenset({'P1', 'P2', 'uniqueness_ratio'})
 #: What a trial may change, and the values it picks from.
 SPACE: dict[str, tuple[Any, ...]] = {
     'P1': (8, 12, 18, 24, 32),
     'P2': (120, 160, 220, 300, 400),
     'uniqueness_ratio': (5.0, 10.0, 15.0),
     'paths': (5, 8),
-    'disparity_range': (64, 96, 128, 192),
     'matching_cost': ('census', 'census+learned'),
     'learned_weight': (10, 20, 40),
 }
@@ -108,6 +115,30 @@ def _shipped_settings() -> dict[str, Any]:
         elif spec.plugin == 'cross_check':
             out['check_diff'] = float(spec.parameters.get('disp12_max_diff', 1.0))
     return out
+
+
+def _preset(name: str) -> tuple[dict[str, Any], dict[str, str]]:
+    """A stereo camera preset's sgm_stereo settings and its driver's topics, as the names
+    :func:`stereo_pairs` reads.
+
+    Raises:
+        ConfigError: No such preset, or one without a stereo pair.
+    """
+    preset = load_camera(name, default_config_path().parent)
+    stereo = next((s for s in preset.config.nodes if s.plugin == 'sgm_stereo'), None)
+    if stereo is None:
+        raise ConfigError(f'camera preset {name} has no stereo pair to tune')
+    cam = preset.camera
+    ns = str(cam.get('namespace', '/stereo')).rstrip('/')
+    image = str(cam.get('image', 'image_raw'))
+    rename = {}
+    for side in ('left', 'right'):
+        driver = f'{ns}/{cam.get(side, side)}'
+        rename[f'{driver}/{image}'] = f'{ns}/{side}/image_raw'
+        rename[f'{driver}/{image}/compressed'] = f'{ns}/{side}/image_raw/compressed'
+        rename[f'{driver}/camera_info'] = f'{ns}/{side}/camera_info'
+    settings = {**_shipped_settings(), **stereo.parameters}
+    return settings, rename
 
 
 def _params(settings: dict[str, Any]) -> SgmParams:
@@ -179,11 +210,15 @@ def score_pairs(pairs: list[Pair], settings: dict[str, Any],
 
 
 def ground_truth(bag: str | Path) -> dict[int, F32]:
-    """The bag's ``<ns>/left/disparity_gt`` by stamp (empty: none)."""
+    """The bag's left ``disparity_gt`` by stamp (empty: none)."""
     with BagReader(bag) as reader:
-        topics = [t for t, kind in reader.topics.items()
-                  if t.endswith('/left/disparity_gt') and kind.endswith('DisparityImage')]
-        out = {}
+        # the left camera's (a driver's layout may name it otherwise, e.g. infra1)
+        topics = sorted(t for t, kind in reader.topics.items()
+                        if t.endswith('/disparity_gt') and kind.endswith('DisparityImage')
+                        and '/right/' not in t)
+        out: dict[int, F32] = {}
+        if not topics:
+            return out
         for msg in reader.messages(topics[:1]):
             parsed = msg.deserialize()
             d = read_disparity(parsed).disparity
@@ -192,7 +227,7 @@ def ground_truth(bag: str | Path) -> dict[int, F32]:
 
 
 def tune(bag: str | Path, *, frames: int = 4, trials: int = 24, seed: int = 0,
-         log: Callable[[str], None] = lambda _: None,
+         camera: str | None = None, log: Callable[[str], None] = lambda _: None,
          stop: Callable[[], bool] = lambda: False,
          on_best: Callable[[TuneResult], None] = lambda _: None) -> TuneResult:
     """Search the settings on the bag's frames (see the module notes). ``on_best`` gets
@@ -206,8 +241,11 @@ def tune(bag: str | Path, *, frames: int = 4, trials: int = 24, seed: int = 0,
     if frames < 1 or trials < 0:
         raise ConfigError(f'--frames must be at least 1 and --trials at least 0, got {frames} '
                           f'and {trials}')
-    pairs = list(stereo_pairs(bag, frames))
-    return search(pairs, _shipped_settings(), trials=trials, seed=seed,
+    base, rename = _shipped_settings(), None
+    if camera is not None:
+        base, rename = _preset(camera)
+    pairs = list(stereo_pairs(bag, frames, rename=rename, run=2))
+    return search(pairs, base, trials=trials, seed=seed,
                   truth=ground_truth(bag) or None, log=log, stop=stop, on_best=on_best)
 
 
@@ -222,15 +260,15 @@ def search(pairs: list[Pair], base: dict[str, Any], *, trials: int, seed: int,
     log(f'{len(pairs)} pair(s); the shipped settings score {result.start.score:.2f}')
     on_best(result)
     rng = np.random.default_rng(seed)
+    tried: set[frozenset[tuple[str, Any]]] = {frozenset()}
     for k in range(trials):
         if stop():
             result.interrupted = True
             break
-        picked = {name: values[int(rng.integers(len(values)))]
-                  for name, values in space.items() if rng.random() < 0.5}
-        if picked.get('matching_cost', base.get('matching_cost', 'census')) == 'census':
-            picked.pop('learned_weight', None)
-        changes = {k: v for k, v in picked.items() if base.get(k, _default(k)) != v}
+        changes = _draw(rng, base, space, tried)
+        if changes is None:
+            log('every setting of the space was tried')
+            break
         trial = replace(score_pairs(pairs, {**base, **changes}, truth), changes=changes)
         best = result.best
         result.trials.append(trial)
@@ -242,10 +280,26 @@ def search(pairs: list[Pair], base: dict[str, Any], *, trials: int, seed: int,
     return result
 
 
+def _draw(rng: np.random.Generator, base: dict[str, Any], space: dict[str, tuple[Any, ...]],
+          tried: set[frozenset[tuple[str, Any]]]) -> dict[str, Any] | None:
+    """Settings not tried yet: each of the space's changed with probability one half to
+    one of its values (the learned weight only with the learned cost), the start's own
+    values left out; None when 1,000 draws found nothing new."""
+    for _ in range(1000):
+        picked = {name: values[int(rng.integers(len(values)))]
+                  for name, values in space.items() if rng.random() < 0.5}
+        if picked.get('matching_cost', base.get('matching_cost', 'census')) == 'census':
+            picked.pop('learned_weight', None)
+        changes = {k: v for k, v in picked.items() if base.get(k, _default(k)) != v}
+        key = frozenset(changes.items())
+        if key not in tried:
+            tried.add(key)
+            return changes
+    return None
+
+
 def _default(name: str) -> Any:
     """A setting's default when the shipped graph does not set it."""
-    if name == 'check_diff':
-        return 1.0  # cross_check's disp12_max_diff
     return asdict(SgmParams()).get(name)
 
 
@@ -254,16 +308,12 @@ def _describe(changes: dict[str, Any]) -> str:
 
 
 def write_params(result: TuneResult, out: Path, bag: str | Path) -> None:
-    """The best settings as a ROS 2 parameter file (sgm_stereo's and cross_check's), written
-    atomically."""
+    """The best settings as a ROS 2 parameter file (sgm_stereo's), written atomically."""
     best = result.best
-    sgm = {k: v for k, v in best.changes.items() if k != 'check_diff'}
     doc: dict[str, Any] = {}
-    if sgm:
-        doc['sgm_stereo'] = {'ros__parameters': sgm}
-    if 'check_diff' in best.changes:
-        doc['cross_check'] = {'ros__parameters': {
-            'disp12_max_diff': best.changes['check_diff']}}
+    if best.changes:
+        doc['sgm_stereo'] = {'ros__parameters': {
+            k: float(v) if k in NODE_DOUBLES else v for k, v in best.changes.items()}}
     header = (f'# depth-nodes tune {bag}: {result.pairs} pair(s), '
               f'{len(result.trials)} trial(s); score {best.score:.2f} against the shipped '
               f'settings\' {result.start.score:.2f} (lower is better)\n')

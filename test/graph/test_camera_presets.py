@@ -37,6 +37,12 @@ STEREO_LAYOUTS = {
 DEPTH_LAYOUTS = {
     'realsense_d435': (['--namespace', '/camera/camera'],
                        '/camera/camera/filtered/image_rect'),
+    'realsense_d455': (['--namespace', '/camera/camera'],
+                       '/camera/camera/filtered/image_rect'),
+    'zed2i': (['--namespace', '/zed/zed_node', '--rename', 'image_rect_raw=depth_registered'],
+              '/zed/zed_node/filtered/image_rect'),
+    'oakd': (['--namespace', '/oak', '--rename', 'depth=stereo', '--rename',
+              'image_rect_raw=image_raw'], '/oak/filtered/image_rect'),
     'orbbec_femto': (['--rename', 'image_rect_raw=image_raw'], '/camera/filtered/image_rect'),
 }
 

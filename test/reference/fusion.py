@@ -58,17 +58,24 @@ def integrate_reference(volume: TsdfVolume, slots: Any, depth: F32, camera: Intr
     s, bs, trunc = p.voxel_size, p.block_size, p.truncation_m
     mode = MODE_CODES[p.weighting_mode]
     to_camera = pose.inverse()
+    r, t = to_camera.rotation, to_camera.position
     for slot in slots:
         origin = volume.coords[slot] * bs
+        # as the kernel: each row of voxels along x from its first voxel, one step a voxel
+        step = (r[0, 0] * s, r[1, 0] * s, r[2, 0] * s)
+        wx0 = origin[0] * s
         for c in range(bs):
             for b in range(bs):
+                wy, wz = (origin[1] + b) * s, (origin[2] + c) * s
+                x = r[0, 0] * wx0 + r[0, 1] * wy + r[0, 2] * wz + t[0] - step[0]
+                y = r[1, 0] * wx0 + r[1, 1] * wy + r[1, 2] * wz + t[1] - step[1]
+                z = r[2, 0] * wx0 + r[2, 1] * wy + r[2, 2] * wz + t[2] - step[2]
                 for a in range(bs):
-                    world = (origin + np.array([a, b, c])) * s
-                    x, y, z = to_camera.rotation @ world + to_camera.position
+                    x, y, z = x + step[0], y + step[1], z + step[2]
                     if z <= 0:
                         continue
-                    u = camera.fx * x / z + camera.cx
-                    v = camera.fy * y / z + camera.cy
+                    u = camera.fx * x * (1.0 / z) + camera.cx
+                    v = camera.fy * y * (1.0 / z) + camera.cy
                     d, xn, yn = measured_reference(depth, u, v)
                     if not d > 0 or d < p.min_integration_distance or d == math.inf:
                         continue

@@ -5,6 +5,7 @@ Ctrl-C keeps the best settings so far; mistakes are one-line errors."""
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -37,12 +38,18 @@ def test_the_score_ranks_a_clearly_worse_setting_as_the_truth_does() -> None:
     assert 0.0 < good.photometric < 20.0
 
 
-def test_the_search_never_ends_worse_than_its_start() -> None:
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_each_trial_is_new_and_its_score_is_reproducible(seed: int) -> None:
     pairs = list(stereo_pairs(BAG, 1))
-    result = search(pairs, _shipped_settings(), trials=3, seed=1)
-    assert len(result.trials) == 3
-    assert result.best.score <= result.start.score
-    assert all(trial.changes for trial in result.trials)  # each one changes something
+    base = _shipped_settings()
+    result = search(pairs, base, trials=6, seed=seed)
+    assert len(result.trials) == 6
+    keys = [frozenset(t.changes.items()) for t in result.trials]
+    assert all(keys)  # each one changes something
+    assert len(set(keys)) == 6  # and no setting is tried twice
+    assert all(base.get(k) != v for t in result.trials for k, v in t.changes.items())
+    best = result.best
+    assert score_pairs(pairs, {**base, **best.changes}).score == pytest.approx(best.score)
 
 
 @pytest.mark.slow
@@ -54,8 +61,16 @@ def test_the_parameter_file_is_one_process_takes(tmp_path: Path) -> None:
     assert f'{out}: written (2 pair(s), 4 trial(s)' in done.stdout
     assert 'trial 4/4' in done.stderr  # progress
     doc = yaml.safe_load(out.read_text())
-    assert doc is not None
-    assert set(doc) <= {'sgm_stereo'}
+    changed = re.search(r'^changed: (.*)$', done.stdout, re.MULTILINE)
+    assert changed is not None
+    if changed.group(1) == 'nothing':
+        assert doc == {}
+    else:  # the report's changes are the file's
+        written = doc['sgm_stereo']['ros__parameters']
+        reported = dict(part.split(' ', 1) for part in changed.group(1).split(', '))
+        assert set(reported) == set(written)
+        for name, value in written.items():
+            assert str(value) == reported[name] or float(value) == float(reported[name])
     done = run_cli(['process', str(BAG), str(tmp_path / 'processed'), '--params', str(out)])
     assert done.returncode == 0, done.stderr
     assert 'warning' not in done.stderr  # every entry reached a node
@@ -99,3 +114,23 @@ def test_mistakes_are_one_line(tmp_path: Path) -> None:
     (line,) = done.stderr.strip().splitlines()
     assert line.startswith('depth-nodes tune: error: ')
     assert 'no stereo pair' in line
+
+
+@pytest.mark.slow
+def test_a_camera_preset_s_topics_and_settings_are_the_start(tmp_path: Path) -> None:
+    driver = tmp_path / 'rs'
+    done = run_cli(['convert', str(BAG), str(driver), '--namespace', '/camera/camera',
+                    '--rename', 'left=infra1', '--rename', 'right=infra2', '--rename',
+                    'image_raw=image_rect_raw'])
+    assert done.returncode == 0, done.stderr
+    out = tmp_path / 'rs.yaml'
+    done = run_cli(['tune', str(driver), '--out', str(out), '--camera', 'realsense_d435',
+                    '--frames', '2', '--trials', '1'])
+    assert done.returncode == 0, done.stderr
+    assert f'{out}: written (2 pair(s), 1 trial(s)' in done.stdout
+    assert 'disparity_range' not in out.read_text()  # the preset's 80 stays
+    done = run_cli(['tune', str(driver), '--out', str(tmp_path / 'x.yaml'), '--camera',
+                    'orbbec_femto'])
+    assert done.returncode == 1
+    assert done.stderr == ('depth-nodes tune: error: camera preset orbbec_femto has no stereo '
+                           'pair to tune\n')

@@ -59,8 +59,11 @@ class ConvertOptions:
         if self.namespace is not None:
             checked_namespace(self.namespace)
         for old, new in self.rename:
-            checked_name(old, '--rename')
-            checked_name(new, '--rename')
+            for name in (old, new):
+                checked_name(name, '--rename')
+                if '/' in name:
+                    raise ConfigError(f'--rename {old}={new}: one level of a topic name on '
+                                      'each side, e.g. left=infra1')
         if self.codec is None and self.bayer is None and self.namespace is None and \
                 not self.rename:
             raise ConfigError('nothing to convert: give --compress, --bayer, --namespace or '

@@ -48,7 +48,7 @@ __all__ = ['BUNDLED', 'PRESETS', 'STRADDLING', 'config_from_metadata', 'frame_me
 #: The presets (320 x 240, 30 frames/s, 12 frames: 0.4 s), and three for volumetric fusion
 #: (a TSDF's truth is the scene's surface: depth_nodes.sim.depth_sequence.scene_at):
 #: depth_orbit: 20 frames at 640 x 480 around the scene, noise 0.0015 Z^2 (a 50 mm baseline,
-#: 0.0384 px of disparity noise: the depth camera of the fusion issue's Open3D figures;
+#: 0.0384 px of disparity noise);
 #: 2 x 2 rays a pixel, the 320 x 240 presets' 4 x 4 per degree), depth_object_leaves, and
 #: depth_long, 10 s through a room (2 x 2 rays a pixel: 300 frames in a quarter of the
 #: time).

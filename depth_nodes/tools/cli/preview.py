@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from depth_nodes.errors import ArgumentError
+from depth_nodes.errors import ArgumentError, BagError
 from depth_nodes.tools import signals
 from depth_nodes.tools.evaluation.previews import bag_sheets
 
@@ -43,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
         raise ArgumentError(f'{out.parent} is not a folder')
     if not args.fps > 0:
         raise ArgumentError(f'--fps must be positive, got {args.fps}')
+    if args.frames is not None and args.frames < 1:
+        raise ArgumentError(f'--frames must be at least 1, got {args.frames}')
     writer = None
     size = (0, 0)
     count = 0
@@ -64,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
         finally:
             if writer is not None:
                 writer.release()
+    if not count:
+        raise BagError(f'{args.bag}: no frame had a map to draw; {out} was not written')
     print(f'{out}: {count} frames, {size[0]}x{size[1]}, {args.fps:g} fps')
     if signals.stop_requested():
         print(f'depth-nodes preview: interrupted; {out} holds the {count} frames drawn before '

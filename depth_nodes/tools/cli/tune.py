@@ -1,5 +1,5 @@
-"""`depth-nodes tune`: sgm_stereo's and cross_check's settings searched on your own stereo
-bag, scored without ground truth (:mod:`depth_nodes.tools.tune`), written as a parameter
+"""`depth-nodes tune`: sgm_stereo's settings searched on your own stereo bag, scored
+without ground truth (:mod:`depth_nodes.tools.tune`), written as a parameter
 file that `process --params`, `pipeline --params` and the launch files' params_file take."""
 
 from __future__ import annotations
@@ -23,6 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='pairs of the bag scored, spread over it (default 4)')
     parser.add_argument('--trials', type=int, default=24,
                         help='settings tried besides the shipped ones (default 24)')
+    parser.add_argument('--camera', metavar='NAME',
+                        help="a stereo camera preset (config/cameras): its driver's topics "
+                        'and its settings (the disparity range among them) as the start')
     parser.add_argument('--seed', type=int, default=0, help='seed of the search (default 0)')
     parser.add_argument('--force', action='store_true', help='replace an existing --out')
 
@@ -36,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
         raise ArgumentError(f'{out.parent} is not a folder')
     with signals.graceful():
         result = tune(args.bag, frames=args.frames, trials=args.trials, seed=args.seed,
+                      camera=args.camera,
                       log=lambda line: print(line, file=sys.stderr, flush=True),
                       stop=signals.stop_requested,
                       on_best=lambda r: write_params(r, out, args.bag))

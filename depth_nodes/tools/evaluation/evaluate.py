@@ -469,9 +469,9 @@ def _disparity_for(confidence_topic: str, estimates: list[str]) -> str | None:
 
 def _write_previews(folder: Path, stamp: int, frame: dict[str, Array], maps: dict[str, Array],
                     threshold: float, image: Array | None) -> None:
-    """Composite PNGs of one frame (see ``tools.previews``): every disparity over the
+    """The sheet of one frame (see ``tools.previews``): every disparity over the
     ground-truth range, its error saturating at 2N px, the ground-truth depth and every
-    confidence, each beside the left image."""
+    confidence, the left image first."""
     gt = frame['ground truth']
     top = float(np.nanmax(gt))
     views = []

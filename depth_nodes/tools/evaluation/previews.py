@@ -208,14 +208,16 @@ def _views_of(topic: str, msg: Any) -> MapView | None:
     return None
 
 
-#: Stamps held back while a frame's maps arrive (a processed bag writes them close together).
-PENDING_STAMPS = 8
+#: A frame is drawn once the bag has moved this far past its stamp (ns): its maps come
+#: within a pipeline latency of its image, in a processed bag and in a live recording.
+PENDING_NS = 3_000_000_000
 
 
 def bag_sheets(path: str | Path, *, max_frames: int | None = None
                ) -> Iterator[tuple[int, Array]]:
     """``(stamp, sheet)`` of the first ``max_frames`` stamps (None: all) of a bag's maps
-    (disparities, depth images, confidence maps), in stamp order, read as a stream.
+    (disparities, depth images, confidence maps), in stamp order, read as a stream (a
+    frame is drawn once the messages are :data:`PENDING_NS` past its stamp).
 
     Raises:
         BagError: Unreadable bag, or no map in it.
@@ -243,7 +245,7 @@ def bag_sheets(path: str | Path, *, max_frames: int | None = None
                     continue
                 pending[stamp] = {}
             pending[stamp][bag_msg.topic] = bag_msg.deserialize()
-            while len(pending) > PENDING_STAMPS:
+            while pending and min(pending) < stamp - PENDING_NS:
                 oldest = min(pending)
                 done.add(oldest)
                 if (drawn := _sheet_of(pending.pop(oldest), maps)) is not None:

@@ -89,16 +89,22 @@ class Pair:
     right: U8
 
 
-def stereo_pairs(bag: str | Path, frames: int) -> Iterator[Pair]:
+def stereo_pairs(bag: str | Path, frames: int, *, rename: dict[str, str] | None = None,
+                 run: int = 1) -> Iterator[Pair]:
     """Up to ``frames`` rectified grey pairs of a stereo bag, spread over it: its
     ``<ns>/left|right/image_rect``, or ``image_raw`` (or ``/compressed``) with
-    ``camera_info`` rectified here.
+    ``camera_info`` rectified here. ``rename``: a driver's topics read as those names
+    (``/camera/camera/infra1/image_rect_raw`` as ``/camera/camera/left/image_raw``).
+    ``run``: the pairs in runs of that many consecutive frames, each run its own
+    ``source`` (``BAG#k``), the runs spread over the bag.
 
     Raises:
         BagError: The bag has no stereo pair (it says what it looked for).
     """
+    rename = rename or {}
+    back = {name: topic for topic, name in rename.items()}
     with BagReader(bag) as reader:
-        topics = set(reader.topics)
+        topics = {rename.get(t, t) for t in reader.topics}
         namespaces = sorted({t.rsplit('/left/', 1)[0] for t in topics if '/left/' in t
                              and t.endswith(('/image_rect', '/image_raw',
                                              '/image_raw/compressed'))})
@@ -111,19 +117,24 @@ def stereo_pairs(bag: str | Path, frames: int) -> Iterator[Pair]:
                   for name in ('image_rect', 'image_raw', 'image_raw/compressed',
                                'camera_info')]
         data: dict[str, dict[int, Any]] = {}
-        for msg in reader.messages([t for t in wanted if t in topics]):
+        for msg in reader.messages([back.get(t, t) for t in wanted if t in topics]):
             parsed = msg.deserialize()
-            data.setdefault(msg.topic, {})[int(parsed.header.stamp.sec) * 10**9 +
-                                           int(parsed.header.stamp.nanosec)] = parsed
+            stamp = int(parsed.header.stamp.sec) * 10**9 + int(parsed.header.stamp.nanosec)
+            data.setdefault(rename.get(msg.topic, msg.topic), {})[stamp] = parsed
     key = next((f'{ns}/left/{n}' for n in ('image_rect', 'image_raw', 'image_raw/compressed')
                 if f'{ns}/left/{n}' in data), None)
     stamps = sorted(data[key]) if key else []
-    if frames < len(stamps):
-        stamps = [stamps[round(i * (len(stamps) - 1) / max(frames - 1, 1))]
-                  for i in range(frames)]
-    for stamp in stamps:
-        left, right = rectified_pair(data, ns, stamp)
-        yield Pair(str(bag), stamp, left, right)
+    runs, n = -(-frames // run), len(stamps)
+    if runs * run < n:
+        firsts = [round(i * (n - run) / max(runs - 1, 1)) for i in range(runs)]
+    else:
+        firsts = list(range(0, n, run))
+    left_over = frames
+    for k, first in enumerate(firsts):
+        for stamp in stamps[first:first + min(run, left_over)]:
+            left_over -= 1
+            left, right = rectified_pair(data, ns, stamp)
+            yield Pair(str(bag) if run == 1 else f'{bag}#{k}', stamp, left, right)
 
 
 def proxy_labels(pair: Pair, matcher: SgmMatcher, config: AdaptConfig
