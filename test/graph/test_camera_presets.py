@@ -23,9 +23,6 @@ STEREO_LAYOUTS = {
     'realsense_d435': (['--namespace', '/camera/camera', '--rename', 'left=infra1',
                         '--rename', 'right=infra2', '--rename', 'image_raw=image_rect_raw'],
                        '/camera/camera/disparity_checked'),
-    'realsense_d455': (['--namespace', '/camera/camera', '--rename', 'left=infra1',
-                        '--rename', 'right=infra2', '--rename', 'image_raw=image_rect_raw'],
-                       '/camera/camera/disparity_checked'),
     'zed2i': (['--namespace', '/zed/zed_node', '--rename', 'left=left_raw', '--rename',
                'right=right_raw', '--rename', 'image_raw=image_raw_color'],
               '/zed/zed_node/disparity_checked'),
@@ -36,8 +33,6 @@ STEREO_LAYOUTS = {
 #: layout, and the filtered depth the graph then publishes.
 DEPTH_LAYOUTS = {
     'realsense_d435': (['--namespace', '/camera/camera'],
-                       '/camera/camera/filtered/image_rect'),
-    'realsense_d455': (['--namespace', '/camera/camera'],
                        '/camera/camera/filtered/image_rect'),
     'zed2i': (['--namespace', '/zed/zed_node', '--rename', 'image_rect_raw=depth_registered'],
               '/zed/zed_node/filtered/image_rect'),
@@ -50,7 +45,11 @@ DEPTH_LAYOUTS = {
 def test_the_shipped_presets() -> None:
     assert PRESETS == ['generic_stereo', 'oakd', 'orbbec_femto', 'realsense_d435',
                        'realsense_d455', 'zed2i']
-    assert set(STEREO_LAYOUTS) | {'orbbec_femto'} == set(PRESETS)
+    # every layout is run: realsense_d455 has the D435's (realsense-ros's) names
+    assert set(STEREO_LAYOUTS) | {'orbbec_femto', 'realsense_d455'} == set(PRESETS)
+    d435, d455 = (load_camera(n, CONFIG) for n in ('realsense_d435', 'realsense_d455'))
+    assert [(s.name, s.namespace, s.remappings) for s in d455.config.nodes] == \
+        [(s.name, s.namespace, s.remappings) for s in d435.config.nodes]
 
 
 @pytest.mark.parametrize('name', PRESETS)

@@ -155,11 +155,16 @@ def test_share_folder_and_ament_index(workspace: Workspace) -> None:
     assert (index / PACKAGE).is_file()
     assert (workspace.share / 'package.xml').read_bytes() == (REPO / 'package.xml').read_bytes()
     for folder, pattern in (('config', '*.yaml'), ('launch', '*')):
-        source = {p.name: p.read_bytes() for p in (REPO / folder).glob(pattern) if p.is_file()}
-        installed = {p.name: p.read_bytes() for p in (workspace.share / folder).iterdir()}
+        # the camera presets in config/cameras too
+        source = {p.relative_to(REPO / folder): p.read_bytes()
+                  for p in (REPO / folder).rglob(pattern) if p.is_file()
+                  and '__pycache__' not in p.parts}
+        installed = {p.relative_to(workspace.share / folder): p.read_bytes()
+                     for p in (workspace.share / folder).rglob('*') if p.is_file()}
         assert source, folder
         assert installed == source, folder
     assert (workspace.share / 'config' / f'{NODE}.yaml').is_file()
+    assert (workspace.share / 'config' / 'cameras' / 'realsense_d435.yaml').is_file()
 
 
 def test_every_module_is_installed(workspace: Workspace) -> None:
