@@ -53,9 +53,9 @@ from depth_nodes.ros.image import image_to_array, to_rgb8, to_uint8
 from depth_nodes.ros.transport import gray_image, image_pixels
 from depth_nodes.tools.bags.io import BagReader
 from depth_nodes.tools.evaluation.previews import (
-    MapView,
     depth_metres,
     previews_folder,
+    scored_views,
     write_views,
 )
 
@@ -389,8 +389,8 @@ def evaluate_bag(
                 msg = data[topic].get(stamp)
                 if msg is not None:
                     maps[topic] = depth_metres(image_to_array(msg), msg.encoding)
-            _write_previews(Path(previews), stamp, frame_out, maps, threshold,
-                            _left_colour(data, ns, stamp))
+            write_views(Path(previews), stamp, _left_colour(data, ns, stamp),
+                        scored_views(frame_out, maps, threshold))
     report.nonocc_fraction = visible_count / max(gt_count, 1)
     report.rows = [a.scores(m, threshold) for m, a in acc.items()]
     report.grid = [a.scores(m, threshold) for m, a in grid_acc.items()]
@@ -465,30 +465,6 @@ def _disparity_for(confidence_topic: str, estimates: list[str]) -> str | None:
         if f'{ns}/{name}' in estimates:
             return f'{ns}/{name}'
     return None
-
-
-def _write_previews(folder: Path, stamp: int, frame: dict[str, Array], maps: dict[str, Array],
-                    threshold: float, image: Array | None) -> None:
-    """The sheet of one frame (see ``tools.previews``): every disparity over the
-    ground-truth range, its error saturating at 2N px, the ground-truth depth and every
-    confidence, the left image first."""
-    gt = frame['ground truth']
-    top = float(np.nanmax(gt))
-    views = []
-    for name, disp in frame.items():
-        views.append(MapView(name, disp, 0.0, top, kind='disparity'))
-        if name != 'ground truth':
-            views.append(MapView(name, np.abs(disp - gt), 0.0, 2 * threshold,
-                                 cv2.COLORMAP_INFERNO, kind='error', missing=(160, 160, 160)))
-    depth_top = float(np.nanmax(maps['depth_gt'])) if 'depth_gt' in maps else None
-    for name, values in maps.items():
-        if name == 'depth_gt' or name.endswith('/depth'):
-            top = depth_top if depth_top is not None else float(np.nanmax(values))
-            views.append(MapView(name, values, 0.0, top, unit='m', kind='depth'))
-        else:
-            views.append(MapView(name, values, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit='',
-                                 kind='confidence'))
-    write_views(folder, stamp, image, views)
 
 
 def _left_colour(data: dict[str, dict[int, Any]], ns: str, stamp: int) -> Array | None:

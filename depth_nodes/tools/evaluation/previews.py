@@ -153,6 +153,31 @@ def sheet(image: Array | None, views: Iterable[MapView]) -> Array:
                              constant_values=255) for r in drawn])
 
 
+def scored_views(frame: dict[str, Array], maps: dict[str, Array],
+                 threshold: float) -> list[MapView]:
+    """The maps of a frame scored against ground truth (``frame``: disparities by name,
+    ``'ground truth'`` among them; ``maps``: depths and confidences): every disparity over
+    the ground-truth range, its error saturating at 2 ``threshold`` px, every depth over
+    the ground-truth depth's range, every confidence over 0 - 1."""
+    gt = frame['ground truth']
+    top = float(np.nanmax(gt))
+    views = []
+    for name, disp in frame.items():
+        views.append(MapView(name, disp, 0.0, top, kind='disparity'))
+        if name != 'ground truth':
+            views.append(MapView(name, np.abs(disp - gt), 0.0, 2 * threshold,
+                                 cv2.COLORMAP_INFERNO, kind='error', missing=(160, 160, 160)))
+    depth_top = float(np.nanmax(maps['depth_gt'])) if 'depth_gt' in maps else None
+    for name, values in maps.items():
+        if name == 'depth_gt' or name.endswith('/depth'):
+            high = depth_top if depth_top is not None else float(np.nanmax(values))
+            views.append(MapView(name, values, 0.0, high, unit='m', kind='depth'))
+        else:
+            views.append(MapView(name, values, 0.0, 1.0, cv2.COLORMAP_VIRIDIS, unit='',
+                                 kind='confidence'))
+    return views
+
+
 def write_views(folder: Path, stamp: int, image: Array | None,
                 views: Iterable[MapView]) -> list[Path]:
     """The frame's sheet as ``<stamp>_sheet.png`` (see the module notes); returns it."""
