@@ -217,3 +217,24 @@ def small_sl_graph(bag: Path) -> Any:
                   'speckle_window': 9},
                  {'image': 'image_raw', 'projector/camera_info': '/sl/projector/camera_info'}),
     ])
+
+
+def interrupt_once_written(args: list[str], path: Path, *, settle: float = 0.0,
+                           timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    """Run `depth-nodes ARGS`, send it Ctrl-C (SIGINT) once ``path`` exists (and ``settle``
+    seconds more), and return what it printed and its exit code; fails when ``path`` never
+    appears."""
+    proc = subprocess.Popen([sys.executable, '-m', 'depth_nodes.tools.cli', *args], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + timeout
+        while not path.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+        assert path.exists(), proc.stderr.read() if proc.stderr else ''
+        time.sleep(settle)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)

@@ -4,16 +4,12 @@ nodes run, short reproducible training runs, and the commands' errors."""
 
 from __future__ import annotations
 
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from helpers import REPO, run_cli
+from helpers import REPO, interrupt_once_written, run_cli
 from reference.learned import features_reference
 
 from depth_nodes.core.learned.confidence import ConfidenceModel
@@ -182,22 +178,11 @@ def test_adapting_refuses_what_it_cannot_use(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_a_ctrl_c_keeps_the_best_adapted_weights(tmp_path: Path) -> None:
     out = tmp_path / 'mine.npz'
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'depth_nodes.tools.cli', 'train-cost', '--adapt',
-         str(REPO / 'bags' / 'stereo_qvga_color'), '--out', str(out), '--steps', '5000',
-         '--frames', '1', '--disparities', '48'], cwd=REPO, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 300
-        while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
-            time.sleep(0.2)
-        assert out.exists(), proc.stderr.read() if proc.stderr else ''
-        proc.send_signal(signal.SIGINT)
-        stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, stderr
+    done = interrupt_once_written(
+        ['train-cost', '--adapt', str(REPO / 'bags' / 'stereo_qvga_color'), '--out', str(out),
+         '--steps', '5000', '--frames', '1', '--disparities', '48'], out)
+    stdout, stderr = done.stdout, done.stderr
+    assert done.returncode == 0, stderr
     assert 'depth-nodes train-cost: interrupted;' in stderr
     assert 'holds the best weights so far' in stderr, stdout
     assert FeatureNet.load(out).recipe['command'] == 'depth-nodes train-cost --adapt'

@@ -6,15 +6,11 @@ Ctrl-C keeps the best settings so far; mistakes are one-line errors."""
 from __future__ import annotations
 
 import re
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
 import yaml
-from helpers import REPO, run_cli
+from helpers import REPO, interrupt_once_written, run_cli
 
 from depth_nodes.tools.train.adapt import stereo_pairs
 from depth_nodes.tools.tune import _shipped_settings, ground_truth, score_pairs, search
@@ -79,22 +75,10 @@ def test_the_parameter_file_is_one_process_takes(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_ctrl_c_keeps_the_best_settings_so_far(tmp_path: Path) -> None:
     out = tmp_path / 'tuned.yaml'
-    proc = subprocess.Popen(
-        [sys.executable, '-m', 'depth_nodes.tools.cli', 'tune', str(BAG), '--out', str(out),
-         '--frames', '1', '--trials', '100000'], cwd=REPO, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 120
-        while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
-            time.sleep(0.2)
-        assert out.exists(), proc.stderr.read() if proc.stderr else ''
-        time.sleep(1.0)
-        proc.send_signal(signal.SIGINT)
-        stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, stderr
+    done = interrupt_once_written(['tune', str(BAG), '--out', str(out), '--frames', '1',
+                                   '--trials', '100000'], out, settle=1.0)
+    stdout, stderr = done.stdout, done.stderr
+    assert done.returncode == 0, stderr
     assert 'changed:' in stdout  # the report of what was tried
     assert 'depth-nodes tune: interrupted after' in stderr
     assert 'holds the best settings so far' in stderr
